@@ -1,0 +1,33 @@
+# imcsim: every target does its own set-up on a fresh machine (idempotent).
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.imcsim-installed
+
+.PHONY: setup demo test lint bench clean
+
+setup: $(STAMP)
+	@sh scripts/ensure-llvm.sh
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --disable-pip-version-check --upgrade pip
+	$(BIN)/python -m pip install -q --disable-pip-version-check -e '.[dev]'
+	@touch $(STAMP)
+
+demo: setup
+	$(BIN)/imc info
+	$(BIN)/imc run scenarios/quickstart.yaml --out runs/quickstart --save-frames
+
+test: setup
+	RERUN_TELEMETRY_ENABLED=0 $(BIN)/python -m pytest -q
+
+lint: setup
+	$(BIN)/ruff check .
+
+bench: setup
+	$(BIN)/python benchmarks/render.py
+	$(BIN)/python benchmarks/correlator.py
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache .ruff_cache *.egg-info

@@ -143,7 +143,8 @@ class Correlator:
         o = self.options
         h, w = self.shape
         cross = np.conj(self._ref_spec) * sfft.rfft2(cur_w, workers=o.workers)
-        white = cross / (np.abs(cross) + 1e-12 * np.abs(cross).max(axis=(1, 2), keepdims=True))
+        mag = np.abs(cross)
+        white = cross / (mag + 1e-12 * mag.max(axis=(1, 2), keepdims=True) + 1e-30)
         white_surf = sfft.fftshift(sfft.irfft2(white, s=(h, w), workers=o.workers), axes=(1, 2))
         if o.method == "phase":
             return white_surf, white_surf
@@ -363,14 +364,19 @@ def _refine(ref: np.ndarray, cur: np.ndarray, shift: np.ndarray, iterations: int
     crlb = np.full_like(shift, np.inf)
     for it in range(iterations + 1):
         half = np.where(np.isfinite(shift), shift, 0.0) / 2.0
-        m = int(np.ceil(np.abs(half).max())) + 3
-        m = min(m, min(h, w) // 2 - 2)
-        y0, y1, x0, x1 = m, h - m, m, w - m
-        cs = _sample(cur, half, y0, y1, x0, x1)
-        rs = _sample(ref, -half, y0, y1, x0, x1)
-        e = (cs - rs)[:, 1:-1, 1:-1]
+        cs = _sample(cur, half, 0, h, 0, w)
+        rs = _sample(ref, -half, 0, h, 0, w)
+        # per-block mask: both samples (and their gradient neighbours) inside the block
+        ok = np.ones((n, h - 2, w - 2), bool)
+        for sign in (1.0, -1.0):
+            py = np.arange(1, h - 1)[None, :] + sign * half[:, 0:1]
+            px = np.arange(1, w - 1)[None, :] + sign * half[:, 1:2]
+            ok &= ((py >= 2) & (py <= h - 3))[:, :, None] & ((px >= 2) & (px <= w - 3))[:, None, :]
+        wgt = ok.astype(np.float64)
+        e = (cs - rs)[:, 1:-1, 1:-1] * wgt
         gy = 0.25 * ((cs[:, 2:, 1:-1] - cs[:, :-2, 1:-1]) + (rs[:, 2:, 1:-1] - rs[:, :-2, 1:-1]))
         gx = 0.25 * ((cs[:, 1:-1, 2:] - cs[:, 1:-1, :-2]) + (rs[:, 1:-1, 2:] - rs[:, 1:-1, :-2]))
+        gy, gx = gy * wgt, gx * wgt
         a11 = (gy * gy).sum(axis=(1, 2))
         a12 = (gy * gx).sum(axis=(1, 2))
         a22 = (gx * gx).sum(axis=(1, 2))
@@ -381,8 +387,8 @@ def _refine(ref: np.ndarray, cur: np.ndarray, shift: np.ndarray, iterations: int
             s1 = (a22 * b1 - a12 * b2) / det
             s2 = (a11 * b2 - a12 * b1) / det
             if it == iterations:
-                npix = e.shape[1] * e.shape[2]
-                var_e = (e.astype(np.float64) ** 2).mean(axis=(1, 2))
+                npix = np.maximum(wgt.sum(axis=(1, 2)), 1.0)
+                var_e = (e**2).sum(axis=(1, 2)) / npix
                 # remove the noise contribution to the gradient energy (central differences
                 # of two averaged images: sigma^2/4 per pixel = var_e/8)
                 corr = npix * var_e / 8.0

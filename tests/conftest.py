@@ -1,0 +1,47 @@
+"""Shared fixtures: small, deterministic models built from the quickstart scenario."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("RERUN_TELEMETRY_ENABLED", "0")
+
+ROOT = Path(__file__).resolve().parents[1]
+QUICKSTART = ROOT / "scenarios" / "quickstart.yaml"
+
+
+@pytest.fixture(scope="session")
+def quickstart():
+    from imc.scenario import load_scenario
+
+    return load_scenario(QUICKSTART)
+
+
+@pytest.fixture(scope="session")
+def camera_model(quickstart):
+    """The quickstart camera model (target staring, 2 Hz pitch jitter)."""
+    from imc.pipeline import build_models
+
+    return build_models(quickstart).camera
+
+
+def textured(shape, rng: np.random.Generator, blur_px: float = 0.8) -> np.ndarray:
+    """Band-limited periodic texture (power ~ f^-2, Gaussian-blurred), mean 100, std 20."""
+    from scipy.ndimage import gaussian_filter
+
+    from scene.terrain import fractal_noise
+
+    img = gaussian_filter(fractal_noise(shape, 2.0, rng, 2.0), blur_px, mode="wrap")
+    return img / img.std() * 20.0 + 100.0
+
+
+def fourier_shifted(img: np.ndarray, shifts: np.ndarray) -> np.ndarray:
+    """Stack of copies of a periodic image with content moved by shifts (N, 2) px."""
+    from scipy.ndimage import fourier_shift
+
+    spec = np.fft.fft2(img)
+    return np.stack([np.fft.ifft2(fourier_shift(spec, d)).real for d in shifts])

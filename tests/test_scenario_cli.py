@@ -1,0 +1,103 @@
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+from conftest import QUICKSTART
+from typer.testing import CliRunner
+
+from imc.cli import app
+from imc.scenario import ScenarioError, load_scenario, parse_scenario
+
+runner = CliRunner()
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    p = tmp_path / "s.yaml"
+    p.write_text(text)
+    return p
+
+
+def _quickstart_with(**changes) -> dict:
+    data = yaml.safe_load(QUICKSTART.read_text())
+    for dotted, value in changes.items():
+        node = data
+        *parents, leaf = dotted.split(".")
+        for key in parents:
+            node = node[key]
+        node[leaf] = value
+    return data
+
+
+def test_quickstart_loads_with_ikonos_values(quickstart):
+    assert quickstart.n_frames == 100
+    assert quickstart.exposure_s == pytest.approx(0.01)
+    assert quickstart.camera.focal_length_m == 10.0
+    assert quickstart.attitude.jitter[0].frequency_hz == 2.0
+
+
+@pytest.mark.parametrize(
+    "changes, field",
+    [
+        ({"camera.tracker.frame_rate_hz": -5}, "camera.tracker.frame_rate_hz"),
+        ({"camera.tracker.rows": "many"}, "camera.tracker.rows"),
+        ({"correlator.method": "fft"}, "correlator.method"),
+        ({"correlator.block_px": 512}, "block_px"),
+        ({"scene.sizee_m": 5}, "scene.sizee_m"),
+        ({"attitude.jitter": [{"axis": "pitch", "frequency_hz": 2.0}]},
+         "attitude.jitter.0"),
+        ({"camera.tracker.exposure_s": 0.5}, "camera.tracker"),
+    ],
+)
+def test_invalid_fields_are_named(changes, field):
+    with pytest.raises(ScenarioError) as e:
+        parse_scenario(_quickstart_with(**changes), "q.yaml")
+    msg = str(e.value)
+    assert field in msg and "\n" not in msg
+
+
+def test_yaml_syntax_and_file_errors(tmp_path):
+    with pytest.raises(ScenarioError, match="YAML syntax error at line 3"):
+        load_scenario(_write(tmp_path, "name: x\norbit: [1, 2\n"))
+    with pytest.raises(ScenarioError, match="not found"):
+        load_scenario(tmp_path / "missing.yaml")
+    with pytest.raises(ScenarioError, match="mapping"):
+        load_scenario(_write(tmp_path, "- 1\n- 2\n"))
+    with pytest.raises(ScenarioError, match="empty"):
+        load_scenario(_write(tmp_path, ""))
+
+
+def test_cli_bad_scenario_is_one_line_and_nonzero(tmp_path):
+    bad = _write(tmp_path, yaml.safe_dump(_quickstart_with(**{"scene.spp": 0})))
+    res = runner.invoke(app, ["run", str(bad), "--out", str(tmp_path / "o")])
+    assert res.exit_code == 2
+    text = res.output.strip()
+    assert "scene.spp" in text and "Traceback" not in text
+
+
+def test_cli_subprocess_never_prints_a_traceback(tmp_path):
+    bad = _write(tmp_path, "orbit:\n  altitude_m: low\n")
+    proc = subprocess.run([sys.executable, "-m", "imc.cli", "run", str(bad)],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert "orbit.altitude_m" in proc.stderr
+    assert "Traceback" not in proc.stderr + proc.stdout
+    assert len(proc.stderr.strip().splitlines()) <= 2
+
+
+def test_validate_catches_a_tile_too_small_for_nadir_mode(tmp_path):
+    data = _quickstart_with(**{"attitude.mode": "nadir"})
+    p = _write(tmp_path, yaml.safe_dump(data))
+    res = runner.invoke(app, ["validate", str(p)])
+    assert res.exit_code == 2
+    assert "scene.size_m" in res.output and "nadir" in res.output
+    ok = runner.invoke(app, ["validate", str(QUICKSTART)])
+    assert ok.exit_code == 0, ok.output
+
+
+def test_info_names_the_variant():
+    res = runner.invoke(app, ["info"])
+    assert res.exit_code == 0
+    assert "mitsuba variant:" in res.output
+    assert any(v in res.output for v in ("llvm_ad_rgb", "cuda_ad_rgb", "scalar_rgb"))

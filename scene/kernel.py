@@ -170,6 +170,7 @@ class Renderer:
                 "sampling_weight": 0.0,
             },
         }
+        self._scene_dict = scene_dict
         self._scene = mi.load_dict(scene_dict)
         self._sensor = self._scene.sensors()[0]
         self.build_s = time.perf_counter() - t0

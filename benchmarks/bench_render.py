@@ -1,0 +1,79 @@
+"""Render speed: seconds per frame of the exact moving pinhole sensor vs a bare Mitsuba render.
+
+Usage: python benchmarks/bench_render.py [--quick]. Prints a table; writes benchmarks/out/render.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import time
+from pathlib import Path
+
+import numpy as np
+
+from imc.pipeline import build_models
+from imc.scenario import load_scenario
+from scene.kernel import Renderer, Sun, load_mitsuba
+from scene.pinhole import ray_keyframes
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def bare_perspective_s(mi, terrain_mesh_scene: dict, size: int, spp: int, reps: int) -> float:
+    """Seconds per frame of Mitsuba's stock perspective sensor on the same scene."""
+    d = dict(terrain_mesh_scene)
+    d["sensor"] = {
+        "type": "perspective", "fov": float(np.degrees(size * 1.2e-6)), "far_clip": 1e7,
+        "to_world": mi.ScalarTransform4f().look_at([0, 0, 688e3], [0, 0, 0], [0, 1, 0]),
+        "film": {"type": "hdrfilm", "width": size, "height": size,
+                 "rfilter": {"type": "gaussian"}},
+        "sampler": {"type": "stratified", "sample_count": spp},
+    }
+    scene = mi.load_dict(d)
+    np.asarray(mi.render(scene, seed=0))
+    t0 = time.perf_counter()
+    for k in range(reps):
+        np.asarray(mi.render(scene, seed=k + 1))
+    return (time.perf_counter() - t0) / reps
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--quick", action="store_true", help="fewer repetitions")
+    args = ap.parse_args()
+    reps = 2 if args.quick else 5
+    sc = load_scenario(ROOT / "scenarios" / "quickstart.yaml")
+    models = build_models(sc)
+    mi, _, choice = load_mitsuba()
+    rows = []
+    for size in (256, 512):
+        fp = type(models.camera.focal_plane)(10.0, 12e-6, size, size)
+        r = Renderer(models.terrain, Sun(), size, size, spp=4)
+        times = models.frame_t_s[0] + np.linspace(0, sc.exposure_s, 5)
+        kf = ray_keyframes(models.camera.pose(times), fp, (0.0, 0.0), r.z_start_m)
+        base = {k: v for k, v in r._scene_dict.items() if k not in ("sensor",)}
+        for spp in (4, 16, 64):
+            r.spp = spp
+            r.render(kf, 0)
+            t0 = time.perf_counter()
+            for k in range(reps):
+                r.render(kf, k + 1)
+            ours = (time.perf_counter() - t0) / reps
+            bare = bare_perspective_s(mi, base, size, spp, reps)
+            rows.append({"size": size, "spp": spp, "s_per_frame": ours, "bare_s": bare,
+                         "overhead": ours / bare})
+            print(f"{choice.variant:12s} {size}x{size} spp {spp:3d}: {ours:.3f} s/frame "
+                  f"({1 / ours:.1f} frames/s), bare perspective {bare:.3f} s, "
+                  f"overhead {ours / bare:.2f}x", flush=True)
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    print(f"peak RSS {peak_mb:.0f} MB")
+    out = ROOT / "benchmarks" / "out"
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "render.json").write_text(json.dumps({"variant": choice.variant, "rows": rows,
+                                                 "peak_rss_mb": peak_mb}, indent=2))
+
+
+if __name__ == "__main__":
+    main()

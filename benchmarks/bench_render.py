@@ -1,6 +1,6 @@
 """Render speed: seconds per frame of the exact moving pinhole sensor vs a bare Mitsuba render.
 
-Usage: python benchmarks/bench_render.py [--quick]. Prints a table; writes benchmarks/out/render.json.
+Usage: python benchmarks/bench_render.py [--quick]; writes benchmarks/out/render.json.
 """
 
 from __future__ import annotations

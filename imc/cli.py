@@ -88,11 +88,16 @@ def run(
     from rich.progress import Progress
 
     from imc.pipeline import run_scenario
+    from scene.variant import VariantError, choose_variant
 
     try:
         sc = load_scenario(scenario)
-    except ScenarioError as e:
+        choice = choose_variant()
+    except (ScenarioError, VariantError) as e:
         _fail(str(e))
+    if choice.variant.startswith("scalar"):
+        err.print(f"[yellow]warning:[/] rendering with Mitsuba {choice.variant}: {choice.reason}",
+                  highlight=False, soft_wrap=True)
     try:
         with Progress(console=err, transient=True) as prog:
             task = prog.add_task(f"{sc.name}: frames", total=sc.n_frames)

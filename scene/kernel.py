@@ -6,6 +6,9 @@ frame only uploads new pose keyframes (opaque, so nothing recompiles) and a fres
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -32,14 +35,33 @@ class Sun:
         return np.array([np.sin(az) * np.cos(el), np.cos(az) * np.cos(el), np.sin(el)])
 
 
+@contextlib.contextmanager
+def _quiet_stderr(active: bool):
+    """Silence C-level stderr (Dr.Jit's 'cannot load libLLVM' notes when none is usable)."""
+    if not active:
+        yield
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+
+
 def load_mitsuba(choice: VariantChoice | None = None) -> tuple[Any, Any, VariantChoice]:
     """Import mitsuba and drjit with the variant chosen for this machine."""
     choice = choice or choose_variant()
     prepare_environment(choice)
-    import drjit as dr
-    import mitsuba as mi
+    with _quiet_stderr(choice.libllvm_path is None):
+        import drjit as dr
+        import mitsuba as mi
 
-    mi.set_variant(choice.variant)
+        mi.set_variant(choice.variant)
     return mi, dr, choice
 
 
@@ -207,9 +229,10 @@ class Renderer:
         mesh = mi.Mesh("terrain", verts.shape[0], faces.shape[0], props=props,
                        has_vertex_normals=False, has_vertex_texcoords=True)
         params = mi.traverse(mesh)
-        params["vertex_positions"] = mi.Float(verts.astype(np.float32).ravel())
-        params["faces"] = mi.UInt32(faces.astype(np.uint32).ravel())
-        params["vertex_texcoords"] = mi.Float(uv.astype(np.float32).ravel())
+        for key, arr in (("vertex_positions", verts.astype(np.float32)),
+                         ("faces", faces.astype(np.uint32)),
+                         ("vertex_texcoords", uv.astype(np.float32))):
+            params[key] = type(params[key])(arr.ravel())  # dynamic array of any variant
         params.update()
         return mesh
 

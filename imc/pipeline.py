@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from camera.geometry import FocalPlane, Pose, project
+from camera.geometry import FocalPlane
 from camera.motion import CameraModel
 from camera.sensor import SensorModel
 from compensation.controller import FirstOrderLoop
@@ -239,12 +239,10 @@ def compute_truth(m: Models, block_centers_px: np.ndarray) -> Truth:
     pix = np.vstack([fp.center_px[None], block_centers_px])
     ground = m.camera.ground_points(pix, 0.0, m.terrain.height_at)
     t_fine = np.concatenate([exposure_times(m, k, s) for k in range(n)])
-    pose = m.camera.pose(t_fine)
-    moving = Pose(pose.position_m[:, None, :], pose.enu_from_cam[:, None, :, :])
-    p = project(ground[None], moving, fp)  # (T*S, 1+B, 2)
-    per_frame = p.reshape(n, s, -1, 2).mean(axis=1)  # (T, 1+B, 2)
+    motion = m.camera.image_motion_px(ground, t_fine, 0.0)  # (T*S, 1+B, 2)
+    per_frame = motion.reshape(n, s, -1, 2).mean(axis=1)  # (T, 1+B, 2)
     ref = per_frame[0]
-    fine = p - ref[None]
+    fine = motion - ref[None]
     return Truth(t_fine, fine[:, 0], per_frame[:, 0] - ref[0], per_frame[:, 1:] - ref[None, 1:])
 
 

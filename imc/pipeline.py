@@ -170,7 +170,9 @@ class LoopState:
                          z["crlb"], float(z["gain"]), int(z["done"]), float(z["render_s"]))
         except (OSError, KeyError, ValueError):
             return None
-        return st if st.frames.shape == cls.empty(m).frames.shape else None
+        fp = m.camera.focal_plane
+        expected = (len(m.frame_t_s), fp.rows, fp.cols)
+        return st if st.frames.shape == expected and st.shifts.shape[1] == len(m.corners) else None
 
 
 ProgressFn = Callable[[int, int], None]
@@ -230,6 +232,10 @@ class Truth:
     frame_center_px: np.ndarray  # (T, 2) exposure-mean motion at the sensor centre
     frame_blocks_px: np.ndarray  # (T, B, 2) exposure-mean motion at each block centre
 
+    def per_sample(self, per_frame: np.ndarray) -> np.ndarray:
+        """A per-frame quantity (T, ...) held over each frame's truth samples (T*S, ...)."""
+        return np.repeat(per_frame, len(self.t_s) // len(self.frame_center_px), axis=0)
+
 
 def compute_truth(m: Models, block_centers_px: np.ndarray) -> Truth:
     """Exposure-averaged and fine-sampled true image motion of the tracked ground points."""
@@ -249,8 +255,7 @@ def compute_truth(m: Models, block_centers_px: np.ndarray) -> Truth:
 def summarize(m: Models, st: LoopState, truth: Truth) -> dict:
     """Metrics with and without compensation, and the tracker's own accuracy."""
     sc = m.scenario
-    s = sc.metrics.samples_per_frame
-    stage_fine = np.repeat(st.offsets, s, axis=0)
+    stage_fine = truth.per_sample(st.offsets)
     open_loop = truth.center_px
     closed = truth.center_px - stage_fine
     w = sc.metrics.main_exposure_s

@@ -37,7 +37,7 @@ def write_recording(path: Path, m: Models, st: LoopState, truth: Truth) -> None:
         measured = st.shifts + st.offsets[:, None, :]
         valid_mean = np.where(st.valid, 1.0, np.nan)
         meas_mean = np.nanmean(measured * valid_mean[..., None], axis=1)
-        stage_fine = np.repeat(st.offsets, len(truth.t_s) // len(m.frame_t_s), axis=0)
+        stage_fine = truth.per_sample(st.offsets)
         series = {
             "motion/true": (fine_t, truth.center_px),
             "motion/measured": (frame_t, meas_mean),

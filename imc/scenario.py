@@ -8,7 +8,6 @@ silently fall back to defaults). :func:`load_scenario` turns any problem into a
 from __future__ import annotations
 
 import hashlib
-import json
 from datetime import datetime
 from pathlib import Path
 from typing import Literal
@@ -238,7 +237,3 @@ def load_scenario(path: str | Path) -> Scenario:
     if data is None:
         raise ScenarioError(f"{p}: the file is empty")
     return parse_scenario(data, str(p))
-
-
-def scenario_json(sc: Scenario) -> str:
-    return json.dumps(json.loads(sc.model_dump_json()), indent=2)

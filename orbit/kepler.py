@@ -9,6 +9,7 @@ from geographiclib.geodesic import Geodesic
 
 from orbit.frames import (
     GM_EARTH_M3_S2,
+    OMEGA_EARTH_RAD_S,
     WGS84_A_M,
     ecef_to_geodetic,
     eci_to_ecef_matrix,
@@ -105,7 +106,7 @@ class CircularOrbit:
         t = np.asarray(t_s, dtype=np.float64)
         r, v = self.state_eci(t)
         m = eci_to_ecef_matrix(gmst_rad(self.epoch_utc, t))
-        omega = np.array([0.0, 0.0, 7.2921150e-5])
+        omega = np.array([0.0, 0.0, OMEGA_EARTH_RAD_S])
         r_e = np.einsum("...ij,...j->...i", m, r)
         v_e = np.einsum("...ij,...j->...i", m, v) - np.cross(omega, r_e)
         return r_e, v_e

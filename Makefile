@@ -25,9 +25,15 @@ test: setup
 lint: setup
 	$(BIN)/ruff check .
 
-bench: setup
+BENCH_STAMP := $(VENV)/.imcsim-bench
+
+$(BENCH_STAMP): $(STAMP)
+	$(BIN)/python -m pip install -q --disable-pip-version-check -e '.[dev,bench]'
+	@touch $(BENCH_STAMP)
+
+bench: setup $(BENCH_STAMP)
 	$(BIN)/python benchmarks/bench_render.py
-	$(BIN)/python benchmarks/bench_correlator.py
+	$(BIN)/imc bench correlator
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache .ruff_cache *.egg-info

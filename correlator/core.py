@@ -5,38 +5,52 @@ Sign convention (docs/conventions.md): ``shift = (d_row, d_col)`` is the displac
 
 Pipeline for a stack of N block pairs (no Python loop over blocks):
 
-1. coarse: zero-mean, Hann-windowed blocks; correlation surface from the cross-power spectrum
-   (``jtc``: the joint-transform correlator's cross term, computed through the joint input
-   plane with ``joint_plane=True`` or, identically up to padding, directly from the two spectra;
-   ``xcorr``: plain cross-correlation; ``phase``: phase correlation); integer peak;
-2. validity: peak-to-sidelobe ratio (PSR) of the whitened (phase-only) surface at the peak, a
-   normalised detection statistic independent of texture spectrum and contrast, on which the
-   seed paper's threshold detection is applied, plus sanity checks on the input;
-3. sub-pixel: ``com`` (3x3 centre of mass, as in the seed paper), ``parabolic`` or ``gaussian``
-   3-point fits, or ``gradient``: iterative symmetric Lucas-Kanade refinement (both blocks
-   resampled by +-d/2 with cubic B-splines), which removes
-   pixel-locking bias and approaches the Cramer-Rao bound;
-4. ``crlb``: the predicted 1-sigma error sqrt(diag(sigma_e^2 (sum g g^T)^-1)) from the blocks'
-   own gradients g and the residual noise sigma_e.
+1. windows: ref gets a flat-top (Tukey) window that is zero within a margin m of its edges,
+   cur one tapered only at its edges. For |d| <= m every ref sample meets a cur sample under
+   a flat window, so the correlation of the windowed pair is exactly the correlation of the
+   scene: no window bias, and ref's spectrum is computed once (:class:`Correlator`).
+2. one FFT of each cur block; cross spectrum X = conj(R) C (``jtc``: the joint transform
+   correlator's cross term, through the joint input plane with ``joint_plane=True``).
+3. detection: a decimated surface from the central band of the SNR-whitened spectrum
+   X / (|X| + noise floor); its integer peak within the search range and its peak-to-sidelobe
+   ratio (PSR), the normalised statistic on which the seed paper's threshold is applied.
+4. sub-pixel: ``fourier`` (default): Newton's method on the continuous correlation evaluated
+   from the spectrum (exact band-limited interpolation), first on the central band, then on the
+   full band with Knapp-Carter SNR weights; blocks moved by more than m (or all, with
+   ``rewindow=True``) get a second pass with both windows centred on the common content.
+   ``gradient``: symmetric Lucas-Kanade on cubic B-splines. ``parabolic``, ``gaussian``,
+   ``com`` (the paper's centre of mass): 3-point fits on the method's full surface.
+5. ``crlb``: the predicted 1-sigma error H^-1 J H^-1 of this estimate from the pair's own
+   spectra and the noise level (estimated from the highest frequencies), equal to the
+   Cramer-Rao bound 2 sigma^2 (sum g g^T)^-1 for flat weights at high SNR.
+6. validity: PSR above the threshold, texture and finite input, a concave converged peak and a
+   predicted error below ``max_crlb_px`` (so an error of 0.5 px is a > 3-sigma event).
 
 References
 ----------
 Weaver & Goodman, "A technique for optically convolving two functions", Appl. Opt. 5 (1966).
 Kuglin & Hines, "The phase correlation image alignment method", IEEE Cybernetics (1975).
-Lucas & Kanade, "An iterative image registration technique", IJCAI (1981).
+Knapp & Carter, "The generalized correlation method for estimation of time delay",
+IEEE Trans. ASSP 24 (1976).
+Immerkaer, "Fast noise variance estimation", Comput. Vis. Image Underst. 64 (1996).
 Janschek, Tchernykh, Dyblenko, "Performances of image motion tracking with optical correlation".
 """
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.fft as sfft
-from scipy import ndimage
+from threadpoolctl import threadpool_limits
+
+from correlator import gradient, jtc, peaks, spectral
 
 METHODS = ("jtc", "xcorr", "phase")
-SUBPIXEL = ("gradient", "parabolic", "gaussian", "com")
+SUBPIXEL = ("fourier", "gradient", "parabolic", "gaussian", "com")
+WEIGHTINGS = ("snr", "flat")
 
 
 @dataclass(frozen=True)
@@ -47,7 +61,7 @@ class ShiftResult:
     ----------
     shift : (..., 2) float64, (d_row, d_col) px, cur(x) ~ ref(x - d).
     valid : (...) bool, the detection passed the threshold and sanity checks.
-    peak : (...) float64, peak-to-sidelobe ratio of the correlation surface.
+    peak : (...) float64, peak-to-sidelobe ratio of the SNR-whitened correlation surface.
     crlb : (..., 2) float64, predicted 1-sigma error of each component, px.
     """
 
@@ -61,30 +75,45 @@ class ShiftResult:
 class CorrelatorOptions:
     """Options shared by :func:`measure_shift` and :class:`Correlator`.
 
-    method : 'jtc' (default), 'xcorr' or 'phase'.
-    subpixel : 'gradient' (default), 'parabolic', 'gaussian' or 'com'.
+    method : 'jtc' (default), 'xcorr' or 'phase': the surface of peak fits and joint planes.
+    subpixel : 'fourier' (default), 'gradient', 'parabolic', 'gaussian' or 'com'.
+    jtc_filter : 'subtract' (default), 'plain' (joint plane only) or 'fringe'.
+    joint_plane : for 'jtc', build the joint input plane explicitly (slower, as the optics do).
     psr_threshold : minimum peak-to-sidelobe ratio for a valid detection.
     max_shift_px : largest |shift| component searched; default a quarter of the block size.
-    joint_plane : for 'jtc', build the joint input plane explicitly (slower, as the optics do).
-    iterations : refinement iterations of the 'gradient' stage.
-    workers : scipy.fft worker threads (-1: all cores).
+    max_crlb_px : largest predicted 1-sigma error of a valid result, px.
+    weighting : 'snr' (Knapp-Carter weights, default) or 'flat' for the Fourier refinement.
+    rewindow : give every block the second pass with both windows on the common content
+        (default; ~2x slower; False keeps one FFT per block, its window bias is 0.01-0.03 px
+        on smooth textures).
+    iterations : Newton (fourier) or Lucas-Kanade (gradient) iterations.
+    workers : threads over the block stack (-1: all cores).
     """
 
     method: str = "jtc"
-    subpixel: str = "gradient"
-    psr_threshold: float = 8.0
-    max_shift_px: float | None = None
+    subpixel: str = "fourier"
+    jtc_filter: str = "subtract"
     joint_plane: bool = False
-    iterations: int = 4
+    psr_threshold: float = 7.0
+    max_shift_px: float | None = None
+    max_crlb_px: float = 0.15
+    weighting: str = "snr"
+    rewindow: bool = True
+    iterations: int = 3
     workers: int = -1
 
     def __post_init__(self) -> None:
-        if self.method not in METHODS:
-            raise ValueError(f"method must be one of {METHODS}, got {self.method!r}")
-        if self.subpixel not in SUBPIXEL:
-            raise ValueError(f"subpixel must be one of {SUBPIXEL}, got {self.subpixel!r}")
-        if self.psr_threshold < 0 or self.iterations < 0:
-            raise ValueError("psr_threshold and iterations must be >= 0")
+        for name, allowed in (("method", METHODS), ("subpixel", SUBPIXEL),
+                              ("jtc_filter", jtc.JTC_FILTERS), ("weighting", WEIGHTINGS)):
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
+        if self.jtc_filter == "plain" and not self.joint_plane:
+            raise ValueError("jtc_filter='plain' needs joint_plane=True (the fast path has no "
+                             "DC terms to keep)")
+        if self.psr_threshold < 0 or self.iterations < 0 or self.max_crlb_px <= 0:
+            raise ValueError("psr_threshold and iterations must be >= 0, max_crlb_px > 0")
+        if self.max_shift_px is not None and self.max_shift_px < 0:
+            raise ValueError(f"max_shift_px must be >= 0, got {self.max_shift_px}")
 
 
 def _as_stack(a: np.ndarray, name: str) -> np.ndarray:
@@ -95,24 +124,85 @@ def _as_stack(a: np.ndarray, name: str) -> np.ndarray:
         arr = arr[None]
     if arr.ndim != 3:
         raise ValueError(f"{name} must be (H, W) or (N, H, W), got shape {np.shape(a)}")
-    if arr.shape[1] < 8 or arr.shape[2] < 8:
-        raise ValueError(f"{name} blocks must be at least 8x8, got {arr.shape[1:]}")
-    return arr.astype(np.float32, copy=False)
+    if arr.shape[1] < 16 or arr.shape[2] < 16:
+        raise ValueError(f"{name} blocks must be at least 16x16, got {arr.shape[1:]}")
+    return arr
 
 
 def _sanitise(blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Zero-mean blocks with NaN/inf replaced, and a per-block 'usable' flag."""
-    finite = np.isfinite(blocks).all(axis=(1, 2))
-    clean = np.where(np.isfinite(blocks), blocks, 0.0).astype(np.float32)
-    clean = clean - clean.mean(axis=(1, 2), keepdims=True)
-    std = clean.std(axis=(1, 2))
-    scale = np.abs(blocks[finite]).max() if finite.any() else 1.0
-    usable = finite & (std > 1e-6 * max(float(scale), 1e-30))
+    """Zero-mean float32 blocks (non-finite pixels zeroed) and a per-block 'usable' flag.
+
+    Unusable: any non-finite pixel, no texture (std below 1e-6 of the level), or saturated
+    (more than half the pixels at the block maximum).
+    """
+    b = blocks.astype(np.float32, copy=False)
+    mean = b.mean(axis=(1, 2), dtype=np.float64)
+    finite = np.isfinite(mean)
+    if not finite.all():
+        b = np.where(np.isfinite(b), b, 0.0).astype(np.float32)
+        mean = np.where(finite, mean, b.mean(axis=(1, 2), dtype=np.float64))
+    clean = b - mean.astype(np.float32)[:, None, None]
+    flat = clean.reshape(len(b), -1)
+    std = np.sqrt(np.einsum("ij,ij->i", flat, flat, dtype=np.float64) / flat.shape[1])
+    top = flat.max(axis=1)
+    saturated = np.count_nonzero(flat >= top[:, None], axis=1) > flat.shape[1] // 2
+    usable = finite & (std > 1e-6 * np.maximum(np.abs(mean), 1.0)) & ~saturated
     return clean, usable
 
 
-def _window(h: int, w: int) -> np.ndarray:
-    return np.outer(np.hanning(h + 2)[1:-1], np.hanning(w + 2)[1:-1]).astype(np.float32)
+@dataclass(frozen=True)
+class _Layout:
+    """Windows, frequency grids and masks of one block shape (h, w)."""
+
+    h: int
+    w: int
+    margin: tuple[int, int]
+    win_ref: np.ndarray
+    win_cur: np.ndarray
+    taper: tuple[float, float]
+    q: int
+    band_rows: np.ndarray
+    band_cols: int
+    full: spectral.Grid
+    band: spectral.Grid
+    outer: np.ndarray
+    outer_n: int
+    immerkaer: np.ndarray
+    immerkaer_norm: float
+
+    @classmethod
+    def of(cls, h: int, w: int) -> _Layout:
+        m = (max(2, h // 32), max(2, w // 32))
+        tc = m
+        tr = (max(2, h // 16), max(2, w // 16))
+        win_ref = np.outer(spectral.tukey_1d(h, tr[0], m[0] + tc[0]),
+                           spectral.tukey_1d(w, tr[1], m[1] + tc[1]))
+        win_cur = np.outer(spectral.tukey_1d(h, tc[0]), spectral.tukey_1d(w, tc[1]))
+        q = max(1, min(h, w) // 64)
+        rows, cols = spectral.low_band(h, w, q)
+        fy = np.abs(sfft.fftfreq(h))[:, None]
+        fx = sfft.rfftfreq(w)[None, :]
+        outer = (np.hypot(fy, fx) > 0.35).astype(np.float32)
+        full = spectral.Grid.of(h, w)
+        ay = full.ay[:, None]
+        ax = full.ax[None, :]
+        imm = ((2 - 2 * np.cos(ay)) * (2 - 2 * np.cos(ax))) ** 2 * full.alpha * full.rows[:, None]
+        # on the interleaved (re, im) float32 view of a spectrum: |F|^2-weighted sums as matvecs
+        imm2 = np.repeat(imm, 2, axis=1).reshape(-1).astype(np.float32)
+        return cls(h, w, m, win_ref, win_cur, tr, q, rows, cols, full,
+                   spectral.Grid.of(h, w, rows, cols), outer.reshape(-1), int(outer.sum()),
+                   imm2, float(imm.sum()))
+
+
+def _noise_var(spec: np.ndarray, win_energy, lay: _Layout) -> np.ndarray:
+    """Pixel noise variance (N,) from one-sided spectra (N, h, k) of windowed blocks.
+
+    The high-pass energy of Immerkaer's operator (its response peaks at the corner
+    frequencies, where band-limited imagery has almost no texture), normalised by the
+    operator's gain and the window energy ``win_energy``.
+    """
+    v = np.ascontiguousarray(spec).view(np.float32).reshape(len(spec), -1)
+    return ((v * v) @ lay.immerkaer).astype(np.float64) / (lay.immerkaer_norm * win_energy)
 
 
 class Correlator:
@@ -120,93 +210,207 @@ class Correlator:
 
     Parameters
     ----------
-    ref : (H, W) or (N, H, W) reference blocks.
+    ref : (H, W) or (N, H, W) reference blocks, any real dtype.
     options : :class:`CorrelatorOptions`, or keyword arguments for it.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from correlator.testimages import texture_pairs
+    >>> ref, cur, d = texture_pairs(4, 64, np.random.default_rng(0), max_shift_px=2.0)
+    >>> res = Correlator(ref).measure(cur)
+    >>> bool(np.all(np.abs(res.shift - d) < 0.01)), bool(res.valid.all())
+    (True, True)
     """
 
     def __init__(self, ref: np.ndarray, options: CorrelatorOptions | None = None, **kwargs):
         self.options = options or CorrelatorOptions(**kwargs)
         self._single = np.ndim(ref) == 2
-        self.ref = _as_stack(ref, "ref")
-        n, h, w = self.ref.shape
+        ref_arr = _as_stack(ref, "ref")
+        n, h, w = ref_arr.shape
         self.shape = (h, w)
-        self._win = _window(h, w)
-        self._ref_clean, self._ref_ok = _sanitise(self.ref)
-        self._ref_w = self._ref_clean * self._win
-        self._ref_spec = sfft.rfft2(self._ref_w, workers=self.options.workers)
+        self._lay = _Layout.of(h, w)
         m = self.options.max_shift_px
         self.max_shift_px = float(min(h, w) // 4 if m is None else m)
+        self._ref0, self._ref_ok = _sanitise(ref_arr)
+        self._ref_w = self._ref0 * self._lay.win_ref
+        self._ref_spec = sfft.rfft2(self._ref_w, workers=1)
+        self._ref_conj = np.conj(self._ref_spec)
+        self._ref_pow = (self._ref_spec.real**2 + self._ref_spec.imag**2).astype(np.float32)
+        e_ref = float((self._lay.win_ref**2).sum())
+        self._ref_noise = _noise_var(self._ref_spec, e_ref, self._lay)
+        self._ref_wts = self._weights(self._ref_pow, self._ref_noise, e_ref)
+        self._ref_wconj = (self._ref_wts * self._ref_conj).astype(np.complex64)
+        self._ref_m = spectral.gradient_power(self._ref_wts, self._ref_pow, self._lay.full)
+        self._e_cur = float((self._lay.win_cur**2).sum())
+        self._grad_coef = None
+        nw = self.options.workers
+        self._threads = (os.cpu_count() or 1) if nw == -1 else max(1, int(nw))
 
-    # ----------------------------------------------------------------- correlation surface
-    def _surfaces(self, cur_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(correlation surface of the method, whitened surface for detection), centred."""
-        o = self.options
-        h, w = self.shape
-        cross = np.conj(self._ref_spec) * sfft.rfft2(cur_w, workers=o.workers)
-        mag = np.abs(cross)
-        white = cross / (mag + 1e-12 * mag.max(axis=(1, 2), keepdims=True) + 1e-30)
-        white_surf = sfft.fftshift(sfft.irfft2(white, s=(h, w), workers=o.workers), axes=(1, 2))
-        if o.method == "phase":
-            return white_surf, white_surf
-        if o.method == "jtc" and o.joint_plane:
-            return _jtc_joint_plane(self._ref_w, cur_w, o.workers), white_surf
-        surf = sfft.fftshift(sfft.irfft2(cross, s=(h, w), workers=o.workers), axes=(1, 2))
-        return surf, white_surf
+    @property
+    def n_blocks(self) -> int:
+        return self._ref0.shape[0]
 
+    # ------------------------------------------------------------------------- public
     def measure(self, cur: np.ndarray) -> ShiftResult:
         """Shifts of ``cur`` blocks (same shape as ref) relative to the reference blocks."""
         cur_arr = _as_stack(cur, "cur")
-        if cur_arr.shape[1:] != self.ref.shape[1:] or cur_arr.shape[0] not in (
-            1,
-            self.ref.shape[0],
-        ):
-            raise ValueError(
-                f"cur shape {np.shape(cur)} does not match the reference blocks {self.ref.shape}"
-            )
-        if cur_arr.shape[0] != self.ref.shape[0]:
-            cur_arr = np.broadcast_to(cur_arr, self.ref.shape)
-        o = self.options
-        h, w = self.shape
-        cur_clean, cur_ok = _sanitise(cur_arr)
-        surf, white = self._surfaces(cur_clean * self._win)
-        n = surf.shape[0]
-        # integer peak within the search range
-        cy, cx = h // 2, w // 2
-        yy = np.abs(np.arange(h) - cy)[:, None]
-        xx = np.abs(np.arange(w) - cx)[None, :]
-        inside = (yy <= self.max_shift_px) & (xx <= self.max_shift_px)
-        masked = np.where(inside[None], surf, -np.inf)
-        flat = masked.reshape(n, -1).argmax(axis=1)
-        py, px = np.unravel_index(flat, (h, w))
-        psr = _psr(white, py, px)
-        # 3x3 neighbourhood (wrapped) for the peak-fit estimators
-        dy = np.arange(-1, 2)
-        rows = (py[:, None] + dy[None, :]) % h
-        cols = (px[:, None] + dy[None, :]) % w
-        nb = surf[np.arange(n)[:, None, None], rows[:, :, None], cols[:, None, :]].astype(
-            np.float64
-        )
-        frac = _peak_fit(nb, o.subpixel if o.subpixel != "gradient" else "parabolic")
-        shift = np.column_stack([py - cy, px - cx]).astype(np.float64) + frac
-        coarse = shift.copy()
-        iters = o.iterations if o.subpixel == "gradient" else 0
-        shift, crlb, step = _refine(self._ref_clean, cur_clean, shift, iters)
-        valid = (
-            self._ref_ok
-            & cur_ok
-            & (psr >= o.psr_threshold)
-            & np.all(np.isfinite(shift), axis=1)
-            & np.all(np.abs(shift) <= self.max_shift_px + 0.5, axis=1)
-            & np.all(crlb < 0.5, axis=1)
-        )
-        if iters:
-            valid &= (np.abs(step).max(axis=1) < 0.05) & (
-                np.abs(shift - coarse).max(axis=1) < 1.5
-            )
-        shift = np.where(np.isfinite(shift), shift, 0.0)
+        n = self.n_blocks
+        if cur_arr.shape[1:] != self._ref0.shape[1:] or cur_arr.shape[0] not in (1, n):
+            raise ValueError(f"cur shape {np.shape(cur)} does not match the reference blocks "
+                             f"{self._ref0.shape}")
+        if cur_arr.shape[0] != n:
+            cur_arr = np.broadcast_to(cur_arr, self._ref0.shape)
+        chunks = self._chunks(n)
+        if len(chunks) == 1:
+            parts = [self._measure(cur_arr, slice(0, n))]
+        else:
+            # one BLAS thread per worker: the per-block matrix products are small, and nested
+            # BLAS threads on top of ours would oversubscribe the cores
+            with threadpool_limits(1, user_api="blas"), ThreadPoolExecutor(len(chunks)) as ex:
+                parts = list(ex.map(lambda s: self._measure(cur_arr[s], s), chunks))
+        shift, valid, psr, crlb = (np.concatenate([p[i] for p in parts]) for i in range(4))
         if self._single and np.ndim(cur) == 2:
             return ShiftResult(shift[0], valid[0], psr[0], crlb[0])
         return ShiftResult(shift, valid, psr, crlb)
+
+    # ---------------------------------------------------------------------- internals
+    def _weights(self, power, noise, win_energy):
+        """Cross-spectrum weights W (N, h, k): Knapp-Carter SNR weights, or flat 1/2."""
+        if self.options.weighting == "flat":
+            return np.full(power.shape, 0.5, np.float32)
+        return spectral.snr_weights(power, noise * win_energy)
+
+    def _chunks(self, n: int) -> list[slice]:
+        """Split the stack over threads when each part keeps >= 4 blocks."""
+        k = max(1, min(self._threads, n // 4))
+        edges = np.linspace(0, n, k + 1).astype(int)
+        return [slice(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+
+    def _measure(self, cur_arr: np.ndarray, sl: slice):
+        o, lay = self.options, self._lay
+        h, w = self.shape
+        cur0, cur_ok = _sanitise(cur_arr)
+        cur_w = cur0 * lay.win_cur
+        cspec = sfft.rfft2(cur_w, workers=1)
+        y = self._ref_wconj[sl] * cspec
+        noise = 0.5 * (self._ref_noise[sl] + _noise_var(cspec, self._e_cur, lay))
+
+        # ---- detection: decimated SNR-whitened surface, integer peak, PSR
+        xb = y[:, lay.band_rows, : lay.band_cols]
+        mag = np.abs(y).reshape(len(y), -1)
+        floor = (mag @ lay.outer) / lay.outer_n
+        floor = np.maximum(floor, 1e-6 * mag.max(axis=1) + 1e-30)
+        white = xb / (np.abs(xb) + floor[:, None, None])
+        hc, wc = len(lay.band_rows), 2 * (lay.band_cols - 1)
+        dsurf = sfft.irfft2(white, s=(hc, wc), workers=1)
+        iy, ix = self._argmax(dsurf, lay.q)
+        psr = peaks.psr(dsurf, iy, ix)
+        frac = peaks.peak_fit(peaks.neighbourhood(dsurf, iy, ix).astype(np.float64),
+                              "parabolic")
+        d0 = lay.q * (np.column_stack([_lag(iy, hc), _lag(ix, wc)]) + frac)
+
+        # ---- sub-pixel
+        fits = ("parabolic", "gaussian", "com", "gradient")
+        if o.subpixel in fits or o.joint_plane:
+            surf = self._method_surface(self._ref_conj[sl] * cspec, cur_w, sl)
+            jy, jx = self._argmax(surf, 1)
+            nb = peaks.neighbourhood(surf, jy, jx).astype(np.float64)
+            kind = o.subpixel if o.subpixel in ("parabolic", "gaussian", "com") else "parabolic"
+            d0 = np.column_stack([_lag(jy, h), _lag(jx, w)]) + peaks.peak_fit(nb, kind)
+        converged = np.ones(len(d0), bool)
+        if o.subpixel == "fourier":
+            shift, crlb, converged = self._fourier(y, cur0, noise, d0, sl)
+        elif o.subpixel == "gradient":
+            ref_s = self._ref0[sl]
+            shift, crlb, step = gradient.refine(ref_s, cur0, d0, o.iterations)
+            converged = (np.abs(step).max(axis=1) < 0.05) & (np.abs(shift - d0).max(axis=1) < 1.5)
+        else:
+            shift = d0
+            _, _, hess = spectral.newton_terms(y, shift, lay.full)
+            crlb = spectral.sandwich_crlb(self._ref_m[sl], noise, hess, h * w)
+        valid = (
+            self._ref_ok[sl]
+            & cur_ok
+            & (psr >= o.psr_threshold)
+            & converged
+            & np.all(np.isfinite(shift), axis=1)
+            & np.all(np.abs(shift) <= self.max_shift_px + 0.5, axis=1)
+            & np.all(crlb <= o.max_crlb_px, axis=1)
+        )
+        shift = np.where(np.isfinite(shift), shift, 0.0)
+        return shift, valid, np.nan_to_num(psr), crlb
+
+    def _argmax(self, surf: np.ndarray, q: int) -> tuple[np.ndarray, np.ndarray]:
+        """Integer peak (iy, ix) of wrapped surfaces within the search range (scaled by q)."""
+        n, hs, ws = surf.shape
+        lim = self.max_shift_px / q + 0.5
+        inside = ((np.abs(_lag(np.arange(hs), hs)) <= lim)[:, None]
+                  & (np.abs(_lag(np.arange(ws), ws)) <= lim)[None, :])
+        flat = np.where(inside[None], surf, -np.inf).reshape(n, -1).argmax(axis=1)
+        return np.unravel_index(flat, (hs, ws))
+
+    def _method_surface(self, x, cur_w, sl) -> np.ndarray:
+        """Full-resolution correlation surface of the chosen method (lag 0 at [0, 0])."""
+        o = self.options
+        h, w = self.shape
+        if o.method == "jtc" and o.joint_plane:
+            return jtc.joint_plane_surface(self._ref_w[sl], cur_w, o.jtc_filter)
+        if o.method == "phase":
+            spec = x / (np.abs(x) + 1e-30)
+        elif o.method == "jtc" and o.jtc_filter == "fringe":
+            pr = self._ref_pow[sl]
+            spec = x / (pr + jtc.fringe_eps(pr))
+        else:
+            spec = x
+        return sfft.irfft2(spec, s=(h, w), workers=1)
+
+    def _fourier(self, y, cur0, noise, d0, sl):
+        """Fourier refinement: band Newton, weighted full-band Newton, common-content pass."""
+        o, lay = self.options, self._lay
+        h, w = self.shape
+        yb = y[:, lay.band_rows, : lay.band_cols]
+        d, *_ = spectral.newton_peak(yb, d0, lay.band, 2, float(lay.q))
+        d, hess, step = spectral.newton_peak(y, d, lay.full, o.iterations, 0.5)
+        crlb = spectral.sandwich_crlb(self._ref_m[sl], noise, hess, h * w)
+        converged = (np.abs(step).max(axis=1) < 0.01) & (np.abs(d - d0).max(axis=1) < lay.q + 1)
+        # ---- common-content pass: blocks moved beyond the exact margin (or all, if asked)
+        far = np.any(np.abs(d) > np.array(lay.margin), axis=1) & np.isfinite(d).all(axis=1)
+        redo = np.ones(len(d), bool) if o.rewindow else far
+        if redo.any():
+            idx = np.flatnonzero(redo)
+            d2, c2, ok2 = self._common_pass(idx, sl, cur0[idx], noise[idx], d[idx])
+            d[idx], crlb[idx], converged[idx] = d2, c2, converged[idx] & ok2
+        return d, crlb, converged
+
+    def _common_pass(self, idx, sl, cur0, noise, d):
+        """Both windows centred on the content common to ref and cur (shifted by -+d/2)."""
+        o, lay = self.options, self._lay
+        h, w = self.shape
+        ref0 = self._ref0[sl][idx]
+        tr = lay.taper
+        wy_r = spectral.tukey_1d(h, tr[0], np.abs(d[:, 0]) / 2, -d[:, 0] / 2)
+        wx_r = spectral.tukey_1d(w, tr[1], np.abs(d[:, 1]) / 2, -d[:, 1] / 2)
+        wy_c = spectral.tukey_1d(h, tr[0], np.abs(d[:, 0]) / 2, d[:, 0] / 2)
+        wx_c = spectral.tukey_1d(w, tr[1], np.abs(d[:, 1]) / 2, d[:, 1] / 2)
+        win_r = wy_r[:, :, None] * wx_r[:, None, :]
+        win_c = wy_c[:, :, None] * wx_c[:, None, :]
+        rs = sfft.rfft2(ref0 * win_r, workers=1)
+        cs = sfft.rfft2(cur0 * win_c, workers=1)
+        rpow = (rs.real**2 + rs.imag**2).astype(np.float32)
+        e = (win_r**2).sum(axis=(1, 2))
+        wts = self._weights(rpow, noise, e)
+        y = (wts * np.conj(rs) * cs).astype(np.complex64)
+        d2, hess, step = spectral.newton_peak(y, d, lay.full, o.iterations, 0.5)
+        m = spectral.gradient_power(wts, rpow, lay.full)
+        crlb = spectral.sandwich_crlb(m, noise, hess, h * w)
+        return d2, crlb, np.abs(step).max(axis=1) < 0.01
+
+
+def _lag(i: np.ndarray, size: int) -> np.ndarray:
+    """Signed lag of index i on a wrapped axis of length size."""
+    i = np.asarray(i)
+    return np.where(i < (size + 1) // 2, i, i - size)
 
 
 def measure_shift(ref: np.ndarray, cur: np.ndarray, method: str = "jtc", **options) -> ShiftResult:
@@ -214,7 +418,7 @@ def measure_shift(ref: np.ndarray, cur: np.ndarray, method: str = "jtc", **optio
 
     Parameters
     ----------
-    ref, cur : (H, W) or stacked (N, H, W) real arrays of equal shape.
+    ref, cur : (H, W) or stacked (N, H, W) real arrays of equal shape (blocks >= 16x16).
     method : 'jtc', 'xcorr' or 'phase'.
     **options : see :class:`CorrelatorOptions` (subpixel, psr_threshold, max_shift_px, ...).
 
@@ -237,163 +441,3 @@ def measure_shift(ref: np.ndarray, cur: np.ndarray, method: str = "jtc", **optio
         raise ValueError(f"ref and cur must have the same shape, got {np.shape(ref)} and "
                          f"{np.shape(cur)}")
     return Correlator(ref, CorrelatorOptions(method=method, **options)).measure(cur)
-
-
-# ------------------------------------------------------------------------------ internals
-def _jtc_joint_plane(ref_w: np.ndarray, cur_w: np.ndarray, workers: int) -> np.ndarray:
-    """Correlation surface (centred) read from a joint transform correlator's output plane.
-
-    Input plane (2H, 4W): ref at the origin, cur displaced by G = (0, W). The joint power
-    spectrum |F|^2 minus the individual power spectra leaves the cross terms, whose inverse
-    transform holds the cross-correlation at +(G + d) and its mirror at -(G + d).
-    """
-    n, h, w = ref_w.shape
-    plane = np.zeros((n, 2 * h, 4 * w), np.float32)
-    plane[:, :h, :w] = ref_w
-    plane[:, :h, w : 2 * w] = cur_w
-    jps = np.abs(sfft.rfft2(plane, workers=workers)) ** 2
-    solo_r = np.zeros_like(plane)
-    solo_r[:, :h, :w] = ref_w
-    solo_c = np.zeros_like(plane)
-    solo_c[:, :h, w : 2 * w] = cur_w
-    jps -= np.abs(sfft.rfft2(solo_r, workers=workers)) ** 2
-    jps -= np.abs(sfft.rfft2(solo_c, workers=workers)) ** 2
-    out = sfft.irfft2(jps, s=plane.shape[1:], workers=workers)
-    # the +(G + d) term: lags d in [-h/2, h/2) x [-w/2, w/2) around G = (0, w)
-    ry = (np.arange(h) - h // 2) % (2 * h)
-    rx = w + np.arange(w) - w // 2
-    return out[:, ry[:, None], rx[None, :]]
-
-
-def _psr(surf: np.ndarray, py: np.ndarray, px: np.ndarray, radius: int = 2) -> np.ndarray:
-    """Peak-to-sidelobe ratio of a (whitened) surface at (py, px).
-
-    Peak: the largest value within +-1 px of (py, px); sidelobes: the surface outside a box of
-    +-radius px around it; PSR = (peak - mean) / std of the sidelobes.
-    """
-    n, h, w = surf.shape
-    yy = np.arange(h)[None, :, None]
-    xx = np.arange(w)[None, None, :]
-    dy = np.minimum(np.abs(yy - py[:, None, None]), h - np.abs(yy - py[:, None, None]))
-    dx = np.minimum(np.abs(xx - px[:, None, None]), w - np.abs(xx - px[:, None, None]))
-    side = ~((dy <= radius) & (dx <= radius))
-    cnt = side.sum(axis=(1, 2))
-    mean = np.where(side, surf, 0).sum(axis=(1, 2)) / cnt
-    var = np.where(side, (surf - mean[:, None, None]) ** 2, 0).sum(axis=(1, 2)) / cnt
-    idx = np.arange(n)[:, None, None]
-    ry = ((py[:, None] + np.arange(-1, 2)[None, :]) % h)[:, :, None]
-    rx = ((px[:, None] + np.arange(-1, 2)[None, :]) % w)[:, None, :]
-    peak = surf[idx, ry, rx].max(axis=(1, 2))
-    return (peak - mean) / np.sqrt(np.maximum(var, 1e-30))
-
-
-def _peak_fit(nb: np.ndarray, kind: str) -> np.ndarray:
-    """Sub-pixel offset (N, 2) of the peak from its 3x3 neighbourhood (N, 3, 3)."""
-    if kind == "com":
-        v = np.maximum(nb - nb.min(axis=(1, 2), keepdims=True), 0.0)
-        tot = v.sum(axis=(1, 2)) + 1e-30
-        off = np.arange(-1, 2, dtype=np.float64)
-        return np.column_stack([(v.sum(axis=2) * off).sum(1) / tot,
-                                (v.sum(axis=1) * off).sum(1) / tot])
-    row = nb[:, :, 1]
-    col = nb[:, 1, :]
-    if kind == "gaussian":
-        floor = np.minimum(row.min(1), col.min(1))[:, None]
-        eps = 1e-6 * (nb[:, 1, 1] - floor[:, 0])[:, None] + 1e-30
-        row = np.log(row - floor + eps)
-        col = np.log(col - floor + eps)
-
-    def fit(v):
-        den = v[:, 0] - 2.0 * v[:, 1] + v[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            d = 0.5 * (v[:, 0] - v[:, 2]) / den
-        return np.clip(np.where(np.isfinite(d) & (den < 0), d, 0.0), -0.5, 0.5)
-
-    return np.column_stack([fit(row), fit(col)])
-
-
-def _bspline_weights(t: np.ndarray) -> list[np.ndarray]:
-    """Cubic B-spline weights for taps -1, 0, 1, 2 at fraction t (coefficients prefiltered)."""
-    t2, t3 = t * t, t * t * t
-    return [
-        (1.0 - t) ** 3 / 6.0,
-        (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0,
-        (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0,
-        t3 / 6.0,
-    ]
-
-
-def _sample(coef: np.ndarray, off: np.ndarray) -> np.ndarray:
-    """Cubic-spline samples (N, H, W) at (y + off_y, x + off_x) for every pixel (y, x).
-
-    ``coef`` (N, H, W) are B-spline coefficients (:func:`_spline_coefficients`), extended by
-    edge values outside the block; ``off`` (N, 2) a constant offset per block. One window
-    gather per block for the integer part, then the 4-tap filters by slicing.
-    """
-    n, h, w = coef.shape
-    base = np.floor(off).astype(np.int64)
-    fr = off - base
-    pad = int(np.abs(base).max()) + 2
-    padded = np.pad(coef, ((0, 0), (pad, pad), (pad, pad)), mode="edge")
-    views = np.lib.stride_tricks.sliding_window_view(padded, (h + 3, w + 3), axis=(1, 2))
-    win = views[np.arange(n), pad - 1 + base[:, 0], pad - 1 + base[:, 1]]  # (N, H+3, W+3)
-    tmp = sum(wy[:, None, None] * win[:, i : i + h, :]
-              for i, wy in enumerate(_bspline_weights(fr[:, 0])))
-    return sum(wx[:, None, None] * tmp[:, :, j : j + w]
-               for j, wx in enumerate(_bspline_weights(fr[:, 1])))
-
-
-def _spline_coefficients(blocks: np.ndarray) -> np.ndarray:
-    """Cubic B-spline coefficients of each block (filtered along rows and columns only)."""
-    c = ndimage.spline_filter1d(blocks, order=3, axis=1, mode="mirror", output=np.float64)
-    return ndimage.spline_filter1d(c, order=3, axis=2, mode="mirror", output=np.float64)
-
-
-def _refine(ref: np.ndarray, cur: np.ndarray, shift: np.ndarray, iterations: int):
-    """Symmetric Lucas-Kanade refinement; returns (shift, crlb, last step)."""
-    n, h, w = ref.shape
-    ref, cur = _spline_coefficients(ref), _spline_coefficients(cur)
-    shift = shift.copy()
-    step = np.zeros_like(shift)
-    crlb = np.full_like(shift, np.inf)
-    for it in range(iterations + 1):
-        half = np.where(np.isfinite(shift), shift, 0.0) / 2.0
-        cs = _sample(cur, half)
-        rs = _sample(ref, -half)
-        # per-block mask: both samples (and their gradient neighbours) inside the block
-        ok = np.ones((n, h - 2, w - 2), bool)
-        for sign in (1.0, -1.0):
-            py = np.arange(1, h - 1)[None, :] + sign * half[:, 0:1]
-            px = np.arange(1, w - 1)[None, :] + sign * half[:, 1:2]
-            ok &= ((py >= 2) & (py <= h - 3))[:, :, None] & ((px >= 2) & (px <= w - 3))[:, None, :]
-        wgt = ok.astype(np.float64)
-        e = (cs - rs)[:, 1:-1, 1:-1] * wgt
-        gy = 0.25 * ((cs[:, 2:, 1:-1] - cs[:, :-2, 1:-1]) + (rs[:, 2:, 1:-1] - rs[:, :-2, 1:-1]))
-        gx = 0.25 * ((cs[:, 1:-1, 2:] - cs[:, 1:-1, :-2]) + (rs[:, 1:-1, 2:] - rs[:, 1:-1, :-2]))
-        gy, gx = gy * wgt, gx * wgt
-        a11 = (gy * gy).sum(axis=(1, 2))
-        a12 = (gy * gx).sum(axis=(1, 2))
-        a22 = (gx * gx).sum(axis=(1, 2))
-        b1 = (gy * e).sum(axis=(1, 2))
-        b2 = (gx * e).sum(axis=(1, 2))
-        det = a11 * a22 - a12 * a12
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s1 = (a22 * b1 - a12 * b2) / det
-            s2 = (a11 * b2 - a12 * b1) / det
-            if it == iterations:
-                npix = np.maximum(wgt.sum(axis=(1, 2)), 1.0)
-                var_e = (e**2).sum(axis=(1, 2)) / npix
-                # remove the noise contribution to the gradient energy (central differences
-                # of two averaged images: sigma^2/4 per pixel = var_e/8)
-                corr = npix * var_e / 8.0
-                t11 = np.maximum(a11 - corr, 0.1 * a11)
-                t22 = np.maximum(a22 - corr, 0.1 * a22)
-                tdet = t11 * t22 - a12 * a12
-                tdet = np.where(tdet > 0, tdet, np.nan)
-                crlb = np.sqrt(np.column_stack([var_e * t22 / tdet, var_e * t11 / tdet]))
-                crlb = np.where(np.isfinite(crlb), crlb, np.inf)
-                break
-        step = np.column_stack([s1, s2])
-        step = np.where(np.isfinite(step), np.clip(step, -1.0, 1.0), 0.0)
-        shift = shift - step
-    return shift, crlb, step

@@ -114,11 +114,15 @@ class CameraConfig(_Model):
 
 class CorrelatorConfig(_Model):
     method: Literal["jtc", "xcorr", "phase"] = Field("jtc", description="correlation method")
-    subpixel: Literal["gradient", "parabolic", "gaussian", "com"] = Field(
-        "gradient", description="sub-pixel estimator")
-    block_px: int = Field(64, ge=8, le=1024, description="block side, px")
+    subpixel: Literal["fourier", "gradient", "parabolic", "gaussian", "com"] = Field(
+        "fourier", description="sub-pixel estimator (fourier: Newton on the spectrum)")
+    block_px: int = Field(64, ge=16, le=1024, description="block side, px")
     n_blocks: int = Field(4, ge=1, le=1024, description="number of tracked blocks")
-    psr_threshold: float = Field(8.0, ge=0.0, description="peak-to-sidelobe threshold")
+    psr_threshold: float = Field(7.0, ge=0.0, description="peak-to-sidelobe threshold")
+    max_crlb_px: float = Field(0.15, gt=0.0, description="largest predicted 1-sigma error "
+                               "of a valid measurement, px")
+    rewindow: bool = Field(True, description="second pass with windows on the common content "
+                           "(about 2x the cost; false: one FFT per block)")
 
 
 class CompensationConfig(_Model):

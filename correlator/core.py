@@ -41,10 +41,11 @@ from __future__ import annotations
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 import scipy.fft as sfft
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from correlator import gradient, jtc, peaks, spectral
 
@@ -267,7 +268,7 @@ class Correlator:
         else:
             # one BLAS thread per worker: the per-block matrix products are small, and nested
             # BLAS threads on top of ours would oversubscribe the cores
-            with threadpool_limits(1, user_api="blas"), ThreadPoolExecutor(len(chunks)) as ex:
+            with _blas().limit(limits=1, user_api="blas"), ThreadPoolExecutor(len(chunks)) as ex:
                 parts = list(ex.map(lambda s: self._measure(cur_arr[s], s), chunks))
         shift, valid, psr, crlb = (np.concatenate([p[i] for p in parts]) for i in range(4))
         if self._single and np.ndim(cur) == 2:
@@ -405,6 +406,12 @@ class Correlator:
         m = spectral.gradient_power(wts, rpow, lay.full)
         crlb = spectral.sandwich_crlb(m, noise, hess, h * w)
         return d2, crlb, np.abs(step).max(axis=1) < 0.01
+
+
+@lru_cache(maxsize=1)
+def _blas() -> ThreadpoolController:
+    """The process's BLAS thread pools (inspected once: the inspection costs milliseconds)."""
+    return ThreadpoolController()
 
 
 def _lag(i: np.ndarray, size: int) -> np.ndarray:

@@ -28,6 +28,7 @@ class TextureClass:
 
 
 TEXTURES = {
+    "urban": TextureClass("urban", 0.40, 0.20),
     "strong": TextureClass("strong", 0.25, 0.10),
     "medium": TextureClass("medium", 0.12, 0.06),
     "weak": TextureClass("weak", 0.05, 0.03),

@@ -128,6 +128,25 @@ def show_metrics(out_dir: Path = typer.Argument(..., help="a run's output folder
     out.print(_table(metrics))
 
 
+bench_app = typer.Typer(add_completion=False, no_args_is_help=True,
+                        help="Benchmarks (figures for README; never asserted in tests).")
+app.add_typer(bench_app, name="bench")
+
+
+@bench_app.command(name="correlator")
+def bench_correlator(
+    out_dir: Path = typer.Option(Path("benchmarks/out/correlator"), "--out",
+                                 help="folder for correlator.json/.md and the PNG plots"),
+    pairs: int = typer.Option(300, min=20, help="pairs per method table"),
+    quick: bool = typer.Option(False, help="fewer block sizes, SNRs and repeats"),
+    seed: int = typer.Option(0, help="seed of every random draw"),
+) -> None:
+    """Accuracy, validity and speed of every method and of the peers on the same pairs."""
+    from correlator.bench import run as run_bench
+
+    run_bench(out_dir, pairs=pairs, quick=quick, seed=seed, log=out.print)
+
+
 def main() -> None:
     app()
 

@@ -206,3 +206,16 @@ def test_joint_plane_cross_term_equals_the_digital_cross_correlation():
     lags = np.r_[0:16, -16:0]
     expected = lin[:, lags[:, None], lags[None, :]]
     assert np.allclose(plane, expected, atol=1e-3 * np.abs(expected).max())
+
+
+def test_benchmark_scoring_counts_success_and_false_valid():
+    from correlator.bench import score
+
+    d = np.zeros((4, 2))
+    shift = np.array([[0.1, 0.0], [0.0, 0.7], [0.0, -0.1], [2.0, 0.0]])
+    valid = np.array([True, True, True, False])
+    sc, ok = score(shift, valid, d, np.full((4, 2), 0.1))
+    assert ok.tolist() == [True, False, True, False]
+    assert sc["success_pct"] == 50.0 and sc["false_valid_pct"] == 25.0
+    assert np.isclose(sc["rms_px"], np.sqrt((0.01 + 0.01) / 4))
+    assert np.isclose(sc["rms_over_crlb"], sc["rms_px"] / 0.1)

@@ -244,7 +244,6 @@ class Correlator:
         self._ref_wconj = (self._ref_wts * self._ref_conj).astype(np.complex64)
         self._ref_m = spectral.gradient_power(self._ref_wts, self._ref_pow, self._lay.full)
         self._e_cur = float((self._lay.win_cur**2).sum())
-        self._grad_coef = None
         nw = self.options.workers
         self._threads = (os.cpu_count() or 1) if nw == -1 else max(1, int(nw))
 

@@ -219,3 +219,11 @@ def test_benchmark_scoring_counts_success_and_false_valid():
     assert sc["success_pct"] == 50.0 and sc["false_valid_pct"] == 25.0
     assert np.isclose(sc["rms_px"], np.sqrt((0.01 + 0.01) / 4))
     assert np.isclose(sc["rms_over_crlb"], sc["rms_px"] / 0.1)
+
+
+def test_docstring_examples_run():
+    import doctest
+
+    import correlator.core
+
+    assert doctest.testmod(correlator.core).failed == 0

@@ -18,7 +18,6 @@ Definitions, per row:
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -285,6 +284,3 @@ def run(out: Path, pairs: int = 300, quick: bool = False, seed: int = 0,
     log(md)
     return results
 
-
-if __name__ == "__main__":  # pragma: no cover
-    print(json.dumps(run(Path("benchmarks/out/correlator"), quick=True), indent=1)[:2000])

@@ -318,15 +318,14 @@ class Correlator:
             nb = peaks.neighbourhood(surf, jy, jx).astype(np.float64)
             kind = o.subpixel if o.subpixel in ("parabolic", "gaussian", "com") else "parabolic"
             d0 = np.column_stack([_lag(jy, h), _lag(jx, w)]) + peaks.peak_fit(nb, kind)
-        converged = np.ones(len(d0), bool)
         if o.subpixel == "fourier":
-            shift, crlb, converged = self._fourier(y, cur0, noise, d0, sl)
+            shift, crlb, converged = self._fourier(y, xb, cur0, noise, d0, sl)
         elif o.subpixel == "gradient":
             ref_s = self._ref0[sl]
             shift, crlb, step = gradient.refine(ref_s, cur0, d0, o.iterations)
             converged = (np.abs(step).max(axis=1) < 0.05) & (np.abs(shift - d0).max(axis=1) < 1.5)
         else:
-            shift = d0
+            shift, converged = d0, np.ones(len(d0), bool)
             _, _, hess = spectral.newton_terms(y, shift, lay.full)
             crlb = spectral.sandwich_crlb(self._ref_m[sl], noise, hess, h * w)
         valid = (
@@ -365,11 +364,11 @@ class Correlator:
             spec = x
         return sfft.irfft2(spec, s=(h, w), workers=1)
 
-    def _fourier(self, y, cur0, noise, d0, sl):
-        """Fourier refinement: band Newton, weighted full-band Newton, common-content pass."""
+    def _fourier(self, y, yb, cur0, noise, d0, sl):
+        """Fourier refinement: band Newton (on ``yb``, the central band of ``y``), weighted
+        full-band Newton, common-content pass."""
         o, lay = self.options, self._lay
         h, w = self.shape
-        yb = y[:, lay.band_rows, : lay.band_cols]
         d, *_ = spectral.newton_peak(yb, d0, lay.band, 2, float(lay.q))
         d, hess, step = spectral.newton_peak(y, d, lay.full, o.iterations, 0.5)
         crlb = spectral.sandwich_crlb(self._ref_m[sl], noise, hess, h * w)

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.fft as sfft
+from scipy.ndimage import uniform_filter1d
 
 
 def tukey_1d(n: int, taper_px: float, margin_px: float | np.ndarray = 0.0,
@@ -153,8 +154,6 @@ def snr_weights(ref_power: np.ndarray, noise_k: np.ndarray, smooth: int = 11) ->
     (never on the cross spectrum's phases), so they cannot reinforce a noise peak, and a
     tracker computes them once.
     """
-    from scipy.ndimage import uniform_filter1d
-
     p = uniform_filter1d(ref_power, smooth, axis=1, mode="wrap")
     p = uniform_filter1d(p, smooth, axis=2, mode="mirror")
     p = np.maximum(p - noise_k[:, None, None], 0.0)

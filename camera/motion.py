@@ -9,17 +9,23 @@ import numpy as np
 
 from camera.geometry import BODY_FROM_CAM, FocalPlane, Pose, project
 from orbit.attitude import Attitude
-from orbit.frames import LocalFrame, eci_to_ecef_matrix, gmst_rad
-from orbit.kepler import CircularOrbit
+from orbit.frames import LocalFrame, eci_to_ecef_matrix, eci_to_ecef_rate, gmst_rad
+from orbit.kepler import EarthOrbit
 
 HeightFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 @dataclass(frozen=True)
 class CameraModel:
-    """The true camera: poses at any time, exact projection, predicted image motion."""
+    """The true camera: poses at any time, exact projection, predicted image motion.
 
-    orbit: CircularOrbit
+    Image motion and velocity are of ground points fixed in the scene's ENU frame (Earth
+    rotation, orbit, attitude, jitter and terrain height all enter through the exact
+    projection); ``nominal=True`` drops the jitter: the *predicted* motion a tracker can know
+    in advance.
+    """
+
+    orbit: EarthOrbit
     attitude: Attitude
     frame: LocalFrame
     focal_plane: FocalPlane
@@ -38,6 +44,20 @@ class CameraModel:
         enu_from_cam = self.frame.enu_from_ecef @ ecef_from_eci @ eci_from_body @ BODY_FROM_CAM
         return Pose(self.frame.ecef_to_enu(r_ecef), enu_from_cam)
 
+    def pose_rate(self, t_s: np.ndarray, nominal: bool = False):
+        """Time derivatives of :meth:`pose`: camera velocity (..., 3) in m/s (ENU) and
+        d(enu_from_cam)/dt (..., 3, 3) in 1/s."""
+        t = np.asarray(t_s, dtype=np.float64)
+        _, v_ecef = self.orbit.state_ecef(t)
+        g = gmst_rad(self.orbit.epoch_utc, t)
+        m, mdot = eci_to_ecef_matrix(g), eci_to_ecef_rate(g)
+        b = (self.attitude.nominal_eci_from_body(self.orbit, t) if nominal
+             else self.attitude.eci_from_body(self.orbit, t))
+        bdot = self.attitude.eci_from_body_rate(self.orbit, t, nominal)
+        e = self.frame.enu_from_ecef
+        rdot = e @ (mdot @ b + m @ bdot) @ BODY_FROM_CAM
+        return np.einsum("ij,...j->...i", e, v_ecef), rdot
+
     def project(self, points_enu_m: np.ndarray, t_s: np.ndarray, nominal: bool = False):
         """Pixel (row, col) of ENU points at times t_s (no stage offset), float64."""
         return project(points_enu_m, self.pose(t_s, nominal), self.focal_plane)
@@ -55,6 +75,42 @@ class CameraModel:
         ref = project(pts, self.pose(np.asarray(t_ref_s, dtype=np.float64), nominal),
                       self.focal_plane)
         return project(pts[None], moving, self.focal_plane) - ref[None]
+
+    def image_velocity_px_s(
+        self, points_enu_m: np.ndarray, t_s: np.ndarray, nominal: bool = False
+    ) -> np.ndarray:
+        """Image velocity (T, P, 2), px/s (row, col), of ground points (P, 3) at times t_s (T,).
+
+        Differentiates the projection analytically: with camera coordinates
+        q = R^T (p - c), dq/dt = dR^T/dt (p - c) - R^T dc/dt and col = c_pp + f q_x / q_z,
+        d col/dt = f (dq_x q_z - q_x dq_z) / q_z^2 (rows likewise).
+        """
+        pts = np.atleast_2d(np.asarray(points_enu_m, dtype=np.float64))
+        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        pose = self.pose(t, nominal)
+        cdot, rdot = self.pose_rate(t, nominal)
+        d = pts[None] - pose.position_m[:, None, :]  # (T, P, 3)
+        q = np.einsum("tji,tpj->tpi", pose.enu_from_cam, d)
+        qd = (np.einsum("tji,tpj->tpi", rdot, d)
+              - np.einsum("tji,tj->ti", pose.enu_from_cam, cdot)[:, None, :])
+        f = self.focal_plane.f_px
+        z2 = q[..., 2] ** 2
+        col = f * (qd[..., 0] * q[..., 2] - q[..., 0] * qd[..., 2]) / z2
+        row = f * (qd[..., 1] * q[..., 2] - q[..., 1] * qd[..., 2]) / z2
+        return np.stack([row, col], axis=-1)
+
+    def motion_field_px(self, pixel_rc: np.ndarray, t_s: np.ndarray, t_ref_s: float,
+                        height_fn: HeightFn, nominal: bool = False) -> np.ndarray:
+        """Image motion (T, P, 2) in px, from t_ref_s to t_s, of the ground seen at focal-plane
+        pixels (P, 2) at t_ref_s on the surface h(E, N) (relief parallax included)."""
+        ground = self.ground_points(np.atleast_2d(pixel_rc), t_ref_s, height_fn)
+        return self.image_motion_px(ground, t_s, t_ref_s, nominal)
+
+    def velocity_field_px_s(self, pixel_rc: np.ndarray, t_s: float, height_fn: HeightFn,
+                            nominal: bool = False) -> np.ndarray:
+        """Image velocity (P, 2) in px/s at time t_s of the ground seen at pixels (P, 2)."""
+        ground = self.ground_points(np.atleast_2d(pixel_rc), t_s, height_fn)
+        return self.image_velocity_px_s(ground, np.array([t_s]), nominal)[0]
 
     def ground_points(
         self, pixel_rc: np.ndarray, t_s: float, height_fn: HeightFn, iterations: int = 8

@@ -1,12 +1,19 @@
-"""The closed loop: orbit -> render -> sensor -> correlator -> compensation -> metrics.
+"""The closed loop: orbit -> render -> optics -> sensor -> correlator -> compensation -> metrics.
 
 Truth comes from the camera model's exact projection of the true trajectory onto the
 terrain, never from the estimates. Every random draw takes a generator derived from the
 scenario seed and the frame index, so a run (or a resumed run) is reproducible.
+
+Tracking: the blocks are cut where the orbit and nominal attitude predict their content
+(``BlockTracker.update(frame, predicted_px)``). While the predicted motion over the run keeps
+every block on the sensor, all frames are measured against frame 0 ("fixed" reference: no error
+accumulates); a scanning view (nadir / off-nadir, ~83 px per 10 ms) is tracked frame to frame
+("chain") and the increments are summed.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -14,18 +21,22 @@ from pathlib import Path
 
 import numpy as np
 
-from camera.geometry import FocalPlane
+from camera.geometry import FocalPlane, Pose, project
+from camera.imager import FrameImager, TdiImager, synchronous_line_rate_hz
 from camera.motion import CameraModel
-from camera.sensor import SensorModel
+from camera.optics import Optics
+from camera.sensor import Radiometry, SensorModel
 from compensation.controller import FirstOrderLoop
 from compensation.metrics import residual_metrics
 from correlator.core import CorrelatorOptions
 from correlator.tracker import BlockTracker, block_grid
 from imc.io import write_csv, write_json, write_npz
 from imc.scenario import Scenario, ScenarioError
-from orbit.attitude import Attitude, JitterTerm
+from orbit.attitude import Attitude, orbit_looking_at
 from orbit.frames import LocalFrame
-from orbit.kepler import CircularOrbit
+from orbit.jitter import JitterTerm, RandomJitter, WheelJitter, realize_jitter
+from orbit.kepler import EarthOrbit, Orbit
+from orbit.tle import TleOrbit
 from scene.pinhole import ray_keyframes
 from scene.terrain import Terrain, procedural_terrain
 
@@ -38,66 +49,184 @@ class Models:
     """Everything a run needs, built from a Scenario (no rendering yet)."""
 
     scenario: Scenario
-    camera: CameraModel
+    camera: CameraModel  # the tracker sensor's view
+    main_camera: CameraModel  # the main imager's view (same orbit and attitude)
+    imager: FrameImager | TdiImager
+    line_rate_hz: float | None
     terrain: Terrain
+    optics: Optics
+    radiometry: Radiometry
     sensor: SensorModel
     controller: FirstOrderLoop
     correlator: CorrelatorOptions
     corners: np.ndarray
     frame_t_s: np.ndarray
     exposure_s: float
+    chain: bool
+
+    @property
+    def frame_mid_s(self) -> np.ndarray:
+        return self.frame_t_s + 0.5 * self.exposure_s
+
+
+def build_orbit(sc: Scenario) -> EarthOrbit:
+    """The scenario's orbit; circular and sun-synchronous ones placed to see the scene at t = 0."""
+    o, a = sc.orbit, sc.attitude
+    try:
+        if o.kind == "tle":
+            return TleOrbit(o.tle_line1, o.tle_line2, sc.epoch)
+        if o.kind == "elements":
+            return Orbit(o.semi_major_axis_m, o.eccentricity, o.inclination_deg, o.raan_deg,
+                         o.arg_perigee_deg, o.mean_anomaly_deg, sc.epoch, o.j2)
+    except ValueError as e:
+        raise ScenarioError(f"orbit: {e}") from None
+    if o.kind == "sun_synchronous":
+        from orbit.kepler import sun_synchronous_inclination_deg
+
+        inc = sun_synchronous_inclination_deg(o.altitude_m)
+    else:
+        inc = o.inclination_deg
+    # a staring camera sees the scene centre at t = 0; a scanning one half-way through the run,
+    # so the tile is used symmetrically
+    t_mid = 0.0 if a.mode == "target" else 0.5 * sc.duration_s
+    try:
+        orbit = orbit_looking_at(sc.scene.center_lat_deg, sc.scene.center_lon_deg,
+                                 o.altitude_m, inc,
+                                 sc.epoch + np.timedelta64(int(round(t_mid * 1e9)), "ns"),
+                                 o.pass_direction == "descending", a.roll_deg, a.pitch_deg, o.j2)
+        back = np.rad2deg([orbit.raan_rate_rad_s, orbit.arg_perigee_rate_rad_s,
+                           orbit.mean_anomaly_rate_rad_s]) * t_mid
+        return dataclasses.replace(orbit, epoch_utc=sc.epoch,
+                                   raan_deg=orbit.raan_deg - back[0],
+                                   arg_perigee_deg=orbit.arg_perigee_deg - back[1],
+                                   mean_anomaly_deg=orbit.mean_anomaly_deg - back[2])
+    except ValueError as e:
+        raise ScenarioError(f"scene.center_lat_deg: {e}; lower it, raise orbit.inclination_deg "
+                            "or change attitude.roll_deg / pitch_deg") from None
+
+
+def build_jitter(sc: Scenario, ifov_rad: float):
+    """The jitter realisation of this scenario (seeded by ``default_rng([seed, 3])``)."""
+    j = sc.attitude.jitter
+
+    def rad(urad, px):
+        return urad * 1e-6 if urad is not None else px * ifov_rad
+
+    terms: list = [JitterTerm(s.axis, s.frequency_hz, rad(s.amplitude_urad, s.amplitude_px),
+                              np.deg2rad(s.phase_deg)) for s in j.sinusoids]
+    terms += [RandomJitter(r.axis, rad(r.rms_urad, r.rms_px), r.f_min_hz, r.f_max_hz, r.slope)
+              for r in j.random]
+    terms += [WheelJitter(w.axis, w.speed_hz,
+                          tuple((h.number, rad(h.amplitude_urad, h.amplitude_px))
+                                for h in w.harmonics), w.speed_rate_hz_per_s)
+              for w in j.wheels]
+    return realize_jitter(terms, sc.duration_s, np.random.default_rng([sc.seed, 3]))
 
 
 def build_models(sc: Scenario) -> Models:
     """Build orbit, attitude, camera, terrain and loop models; validate the geometry."""
-    epoch = sc.epoch
-    try:
-        orbit = CircularOrbit.over_point(
-            sc.scene.center_lat_deg, sc.scene.center_lon_deg, sc.orbit.altitude_m,
-            sc.orbit.inclination_deg, epoch, descending=sc.orbit.pass_direction == "descending")
-    except ValueError as e:
-        raise ScenarioError(f"scene.center_lat_deg: {e}; lower it or raise "
-                            "orbit.inclination_deg") from None
+    orbit = build_orbit(sc)
     frame = LocalFrame(sc.scene.center_lat_deg, sc.scene.center_lon_deg, 0.0)
-    t = sc.camera.tracker
-    fp = FocalPlane(sc.camera.focal_length_m, sc.camera.pixel_pitch_m, t.rows, t.cols)
-    jitter = tuple(
-        JitterTerm(
-            axis=j.axis,
-            frequency_hz=j.frequency_hz,
-            amplitude_rad=(j.amplitude_urad * 1e-6 if j.amplitude_urad is not None
-                           else j.amplitude_px * fp.ifov_rad),
-            phase_rad=np.deg2rad(j.phase_deg),
+    c, t = sc.camera, sc.camera.tracker
+    fp = FocalPlane(c.focal_length_m, c.pixel_pitch_m, t.rows, t.cols, t.center_offset_px)
+    a = sc.attitude
+    try:
+        attitude = Attitude(
+            mode=a.mode,
+            roll_deg=a.roll_deg if a.mode == "off_nadir" else 0.0,
+            pitch_deg=a.pitch_deg if a.mode == "off_nadir" else 0.0,
+            target_ecef_m=tuple(frame.origin_ecef_m.tolist()) if a.mode == "target" else None,
+            yaw_steering=a.yaw_steering,
+            jitter=build_jitter(sc, fp.ifov_rad),
         )
-        for j in sc.attitude.jitter
-    )
-    attitude = Attitude(
-        mode=sc.attitude.mode,
-        target_ecef_m=tuple(frame.origin_ecef_m.tolist()) if sc.attitude.mode == "target"
-        else None,
-        jitter=jitter,
-    )
+    except ValueError as e:
+        raise ScenarioError(f"attitude: {e}") from None
     cam = CameraModel(orbit, attitude, frame, fp)
+    if a.mode == "target":
+        r, _ = orbit.state_ecef(0.0)
+        up = frame.ecef_to_enu(r)
+        if up[2] <= 0 or np.degrees(np.arctan2(np.hypot(up[0], up[1]), up[2])) > 70.0:
+            raise ScenarioError("attitude.mode: the scene is below 20 deg elevation from the "
+                                "satellite at t = 0; change orbit or orbit.epoch_utc")
     terrain = procedural_terrain(sc.scene.size_m, sc.scene.texel_m, sc.scene.dem_spacing_m,
                                  sc.scene.relief_rms_m, np.random.default_rng([sc.seed, 0]))
+    mi = c.main_imager
+    if mi.kind == "tdi":
+        imager: FrameImager | TdiImager = TdiImager(
+            stages=mi.stages, line_rate_hz=mi.line_rate_hz, clock_phases=mi.clock_phases,
+            center_offset_px=mi.center_offset_px)
+    else:
+        imager = FrameImager(exposure_s=mi.exposure_s, center_offset_px=mi.center_offset_px)
+    main_cam = dataclasses.replace(cam, focal_plane=imager.focal_plane(c.focal_length_m,
+                                                                      c.pixel_pitch_m))
+    line_rate = None
+    if mi.kind == "tdi":
+        line_rate = mi.line_rate_hz
+        if line_rate is None:
+            v = main_cam.velocity_field_px_s(main_cam.focal_plane.center_px, 0.0,
+                                             terrain.height_at, nominal=True)
+            try:
+                line_rate = synchronous_line_rate_hz(v[0])
+            except ValueError as e:
+                raise ScenarioError(f"camera.main_imager: {e}") from None
+    o = c.optics
     frame_t = np.arange(sc.n_frames) / t.frame_rate_hz
+    corners = block_grid(t.rows, t.cols, sc.correlator.block_px, sc.correlator.n_blocks)
     models = Models(
         scenario=sc,
         camera=cam,
+        main_camera=main_cam,
+        imager=imager,
+        line_rate_hz=line_rate,
         terrain=terrain,
-        sensor=SensorModel(t.mean_signal_dn, t.noise_sigma_dn, t.adc_bits),
+        optics=Optics(c.focal_length_m, o.aperture_m, o.wavelength_m, c.pixel_pitch_m,
+                      o.blur_sigma_px, o.transmission, o.diffraction),
+        radiometry=Radiometry(**c.radiometry.model_dump()),
+        sensor=SensorModel(t.mean_signal_dn, t.noise_sigma_dn, t.adc_bits, t.noise_model,
+                           t.gain_e_per_dn, t.full_well_e, t.read_noise_e,
+                           t.dark_current_e_per_s),
         controller=FirstOrderLoop(sc.compensation.gain, sc.compensation.latency_frames),
         correlator=CorrelatorOptions(method=sc.correlator.method,
                                      subpixel=sc.correlator.subpixel,
                                      psr_threshold=sc.correlator.psr_threshold,
                                      max_crlb_px=sc.correlator.max_crlb_px,
                                      rewindow=sc.correlator.rewindow),
-        corners=block_grid(t.rows, t.cols, sc.correlator.block_px, sc.correlator.n_blocks),
+        corners=corners,
         frame_t_s=frame_t,
         exposure_s=sc.exposure_s,
+        chain=False,
     )
+    models = dataclasses.replace(models, chain=_needs_chain(models))
     _check_coverage(models)
     return models
+
+
+def predicted_px(m: Models, centers_px: np.ndarray, k_ref: int, k: int,
+                 offsets: np.ndarray) -> np.ndarray:
+    """Nominal (jitter-free) motion (B, 2) of the content at sensor pixels ``centers_px`` in
+    frame k_ref to frame k, with the stage offsets the two frames were taken with."""
+    fp_px = np.asarray(centers_px, dtype=np.float64) + offsets[k_ref]
+    ground = m.camera.ground_points(fp_px, float(m.frame_mid_s[k_ref]), m.terrain.height_at)
+    mo = m.camera.image_motion_px(ground, m.frame_mid_s[k:k + 1], float(m.frame_mid_s[k_ref]),
+                                  nominal=True)[0]
+    return mo - (offsets[k] - offsets[k_ref])
+
+
+def _needs_chain(m: Models) -> bool:
+    """True if the predicted motion over the run moves a block off the sensor."""
+    n = len(m.frame_t_s)
+    ks = np.unique(np.linspace(0, n - 1, min(n, 16)).astype(int))
+    centers = BlockTracker.centers_from(m.corners, m.scenario.correlator.block_px)
+    zero = np.zeros((n, 2))
+    fp = m.camera.focal_plane
+    b = m.scenario.correlator.block_px
+    for k in ks:
+        step = np.rint(predicted_px(m, centers, 0, int(k), zero)).astype(int)
+        c = m.corners + step
+        # keep a 4 px margin for jitter and the stage
+        if np.any(c < 4) or np.any(c + b > np.array([fp.rows, fp.cols]) - 4):
+            return True
+    return False
 
 
 def _check_coverage(m: Models) -> None:
@@ -114,8 +243,9 @@ def _check_coverage(m: Models) -> None:
     inside = m.terrain.contains(pts[..., 0], pts[..., 1], margin_m=4.0 * m.terrain.dem_spacing_m)
     if not np.all(inside):
         need = 2.0 * float(np.max(np.abs(pts[..., :2]))) + 8.0 * m.terrain.dem_spacing_m
-        hint = (" (attitude.mode 'nadir' sweeps the ground at ~6.8 km/s: use mode 'target' or a"
-                " shorter duration_s)" if m.scenario.attitude.mode == "nadir" else "")
+        hint = (f" (attitude.mode '{m.scenario.attitude.mode}' sweeps the ground at ~6.8 km/s:"
+                " use mode 'target' or a shorter duration_s)"
+                if m.scenario.attitude.mode != "target" else "")
         raise ScenarioError(
             f"scene.size_m: the {m.scenario.scene.size_m:g} m tile does not cover the ground "
             f"the tracker sees during the run; it needs >= {need:.0f} m{hint}")
@@ -127,37 +257,38 @@ def frame_seeds(seed: int, k: int) -> tuple[np.random.Generator, int]:
     return np.random.default_rng([seed, 1, k]), render_seed
 
 
-def exposure_times(m: Models, k: int, n: int) -> np.ndarray:
-    """n times (s) spread evenly (cell centres) over frame k's exposure."""
-    return m.frame_t_s[k] + (np.arange(n) + 0.5) / n * m.exposure_s
-
-
 @dataclass
 class LoopState:
     """Per-frame records of a run (the loop's whole state, so a run can resume)."""
 
     frames: np.ndarray  # (T, H, W) uint16
     offsets: np.ndarray  # (T, 2) stage offset used for each frame, px
-    shifts: np.ndarray  # (T, B, 2) tracker shift of each block vs frame 0, px
+    ref_index: np.ndarray  # (T,) the frame each measurement is against
+    ref_corners: np.ndarray  # (T, B, 2) block corners in the reference frame
+    shifts: np.ndarray  # (T, B, 2) measured shift of each block vs its reference, px
     valid: np.ndarray  # (T, B)
     peaks: np.ndarray  # (T, B)
     crlb: np.ndarray  # (T, B, 2)
-    gain: float
+    estimate: np.ndarray  # (T, 2) estimated image motion since frame 0 (stage removed), px
+    gain: float  # electrons per radiance unit (mean_level signal)
     done: int
     render_s: float
+
+    _FIELDS = ("frames", "offsets", "ref_index", "ref_corners", "shifts", "valid", "peaks",
+               "crlb", "estimate")
 
     @classmethod
     def empty(cls, m: Models) -> LoopState:
         n, b = len(m.frame_t_s), len(m.corners)
         fp = m.camera.focal_plane
         return cls(np.zeros((n, fp.rows, fp.cols), np.uint16), np.zeros((n, 2)),
-                   np.zeros((n, b, 2)), np.zeros((n, b), bool), np.zeros((n, b)),
-                   np.zeros((n, b, 2)), 0.0, 0, 0.0)
+                   np.zeros(n, int), np.zeros((n, b, 2), int), np.zeros((n, b, 2)),
+                   np.zeros((n, b), bool), np.zeros((n, b)), np.zeros((n, b, 2)),
+                   np.zeros((n, 2)), 0.0, 0, 0.0)
 
     def save(self, path: Path, digest: str) -> None:
-        write_npz(path, compress=False, digest=np.array(digest), frames=self.frames,
-                  offsets=self.offsets, shifts=self.shifts, valid=self.valid,
-                  peaks=self.peaks, crlb=self.crlb,
+        write_npz(path, compress=False, digest=np.array(digest),
+                  **{f: getattr(self, f) for f in self._FIELDS},
                   gain=np.array(self.gain), done=np.array(self.done),
                   render_s=np.array(self.render_s))
 
@@ -168,8 +299,8 @@ class LoopState:
             with np.load(path) as z:
                 if str(z["digest"]) != digest:
                     return None
-                st = cls(z["frames"], z["offsets"], z["shifts"], z["valid"], z["peaks"],
-                         z["crlb"], float(z["gain"]), int(z["done"]), float(z["render_s"]))
+                st = cls(*(z[f] for f in cls._FIELDS), float(z["gain"]), int(z["done"]),
+                         float(z["render_s"]))
         except (OSError, KeyError, ValueError):
             return None
         fp = m.camera.focal_plane
@@ -180,6 +311,27 @@ class LoopState:
 ProgressFn = Callable[[int, int], None]
 
 
+def charge_motion_px(m: Models, t_s: np.ndarray) -> np.ndarray:
+    """Motion (..., 2) the main imager follows by itself since t = 0: TDI charge transfer along
+    rows (continuous), zero for a frame imager."""
+    t = np.asarray(t_s, dtype=np.float64)
+    if m.line_rate_hz is None:
+        return np.zeros(t.shape + (2,))
+    return np.stack([t * m.line_rate_hz, np.zeros_like(t)], axis=-1)
+
+
+def expose_frame(m: Models, radiance: np.ndarray, gain: float, rng) -> np.ndarray:
+    """Rendered radiance -> optics MTF -> photo-electrons -> digital frame."""
+    img = m.optics.apply(radiance)
+    if m.scenario.camera.tracker.signal == "radiometric":
+        electrons = m.radiometry.electrons_per_s(
+            img, m.optics.f_number, m.optics.transmission, m.optics.pixel_pitch_m,
+            m.optics.wavelength_m) * m.exposure_s
+    else:
+        electrons = img * gain
+    return m.sensor.expose(electrons, rng, m.exposure_s)
+
+
 def run_loop(m: Models, state: LoopState | None = None, checkpoint: Path | None = None,
              progress: ProgressFn | None = None, renderer=None) -> LoopState:
     """Run (or continue) the closed loop over all tracker frames."""
@@ -188,12 +340,14 @@ def run_loop(m: Models, state: LoopState | None = None, checkpoint: Path | None 
     sc = m.scenario
     st = state or LoopState.empty(m)
     fp = m.camera.focal_plane
+    b = sc.correlator.block_px
     if renderer is None:
         renderer = Renderer(m.terrain, Sun(sc.scene.sun_elevation_deg, sc.scene.sun_azimuth_deg),
                             fp.rows, fp.cols, spp=sc.scene.spp)
+    grid_centers = BlockTracker.centers_from(m.corners, b)
     tracker = None
-    if st.done > 0:
-        tracker = BlockTracker(st.frames[0], m.corners, sc.correlator.block_px, m.correlator)
+    if st.done > 0 and not m.chain:
+        tracker = BlockTracker(st.frames[0], m.corners, b, m.correlator)
     n = len(m.frame_t_s)
     for k in range(st.done, n):
         t0 = time.perf_counter()
@@ -203,20 +357,37 @@ def run_loop(m: Models, state: LoopState | None = None, checkpoint: Path | None 
         radiance = renderer.render(kf, render_seed)
         st.render_s += time.perf_counter() - t0
         if k == 0:
-            st.gain = m.sensor.gain_for(radiance)
-        st.frames[k] = m.sensor.expose(radiance, st.gain, rng)
+            st.gain = m.sensor.gain_for(m.optics.apply(radiance))
+        st.frames[k] = expose_frame(m, radiance, st.gain, rng)
         if k == 0:
-            tracker = BlockTracker(st.frames[0], m.corners, sc.correlator.block_px, m.correlator)
+            st.ref_corners[0] = m.corners
             st.valid[0] = True
             st.peaks[0] = np.inf
+            if not m.chain:
+                tracker = BlockTracker(st.frames[0], m.corners, b, m.correlator)
         else:
-            res = tracker.update(st.frames[k])
+            if m.chain:
+                k_ref = k - 1
+                half = np.rint(predicted_px(m, grid_centers, k_ref, k, st.offsets) / 2.0)
+                lim = np.array([fp.rows - b, fp.cols - b])
+                ref_corners = np.clip(m.corners - half.astype(int), 0, lim)
+                tracker = BlockTracker(st.frames[k_ref], ref_corners, b, m.correlator)
+            else:
+                k_ref, ref_corners = 0, m.corners
+            pred = predicted_px(m, BlockTracker.centers_from(ref_corners, b), k_ref, k,
+                                st.offsets)
+            res = tracker.update(st.frames[k], pred)
+            st.ref_index[k], st.ref_corners[k] = k_ref, ref_corners
             st.shifts[k], st.valid[k], st.peaks[k], st.crlb[k] = (
                 res.shift, res.valid, res.peak, res.crlb)
+            ok = st.valid[k]
+            d = st.shifts[k][ok].mean(axis=0) if ok.any() else pred.mean(axis=0)
+            # content motion since the reference = image motion - stage change
+            st.estimate[k] = st.estimate[k_ref] + d + st.offsets[k] - st.offsets[k_ref]
         if sc.compensation.enabled and st.valid[k].any():
-            # motion estimate relative to frame 0 = tracker shift + the stage offset used
-            est = st.shifts[k][st.valid[k]].mean(axis=0) + st.offsets[k] - st.offsets[0]
-            m.controller.update(st.offsets, k, est, True)
+            target = st.estimate[k] - (charge_motion_px(m, m.frame_mid_s[k])
+                                       - charge_motion_px(m, m.frame_mid_s[0]))
+            m.controller.update(st.offsets, k, target, True)
         st.done = k + 1
         if checkpoint is not None and (st.done % CHECKPOINT_EVERY == 0 or st.done == n):
             st.save(checkpoint, sc.digest())
@@ -227,47 +398,105 @@ def run_loop(m: Models, state: LoopState | None = None, checkpoint: Path | None 
 
 @dataclass(frozen=True)
 class Truth:
-    """True image motion (camera model) relative to frame 0's exposure mean, px."""
+    """True image motion from the camera model (px).
 
-    t_s: np.ndarray  # (T*S,) fine sample times
-    center_px: np.ndarray  # (T*S, 2) motion at the sensor centre
-    frame_center_px: np.ndarray  # (T, 2) exposure-mean motion at the sensor centre
-    frame_blocks_px: np.ndarray  # (T, B, 2) exposure-mean motion at each block centre
+    ``t_s`` samples the main imager's integration windows (``window`` index of each sample);
+    ``motion_px`` is the image motion of the ground at the main imager's centre (a frame imager:
+    the ground seen there at t = 0, relative to t = 0; TDI: the ground entering each line,
+    relative to the line's start), ``charge_px`` what the imager follows itself (TDI charge
+    transfer within the line), ``meas_px`` the truth of every tracker measurement (T, B, 2).
+    """
 
-    def per_sample(self, per_frame: np.ndarray) -> np.ndarray:
-        """A per-frame quantity (T, ...) held over each frame's truth samples (T*S, ...)."""
-        return np.repeat(per_frame, len(self.t_s) // len(self.frame_center_px), axis=0)
+    t_s: np.ndarray
+    window: np.ndarray
+    window_s: float
+    motion_px: np.ndarray
+    charge_px: np.ndarray
+    meas_px: np.ndarray
+    per_window_reset: bool
+
+    def stage_px(self, m: Models, offsets: np.ndarray) -> np.ndarray:
+        """The stage offset (N, 2) at each sample (zero-order hold over tracker frames), with
+        the window-start value removed for TDI lines."""
+        k = np.clip(np.floor(self.t_s * m.scenario.camera.tracker.frame_rate_hz + 1e-9)
+                    .astype(int), 0, len(offsets) - 1)
+        s = offsets[k]
+        if self.per_window_reset:
+            first = np.r_[0, np.flatnonzero(np.diff(self.window)) + 1]
+            s = s - np.repeat(s[first], np.diff(np.r_[first, len(s)]), axis=0)
+        return s
+
+    def residual_px(self, m: Models, offsets: np.ndarray) -> np.ndarray:
+        return self.motion_px - self.stage_px(m, offsets) - self.charge_px
 
 
-def compute_truth(m: Models, block_centers_px: np.ndarray) -> Truth:
-    """Exposure-averaged and fine-sampled true image motion of the tracked ground points."""
+def exposure_times(m: Models, k: int, n: int) -> np.ndarray:
+    """n times (s) spread evenly (cell centres) over frame k's exposure."""
+    return m.frame_t_s[k] + (np.arange(n) + 0.5) / n * m.exposure_s
+
+
+def _meas_truth(m: Models, st: LoopState) -> np.ndarray:
+    """True shift (T, B, 2) of every tracker measurement: exposure-mean motion of the ground at
+    each reference block centre, minus the stage change between the two frames."""
     s = m.scenario.metrics.samples_per_frame
-    n = len(m.frame_t_s)
-    fp = m.camera.focal_plane
-    pix = np.vstack([fp.center_px[None], block_centers_px])
-    ground = m.camera.ground_points(pix, 0.0, m.terrain.height_at)
-    t_fine = np.concatenate([exposure_times(m, k, s) for k in range(n)])
-    motion = m.camera.image_motion_px(ground, t_fine, 0.0)  # (T*S, 1+B, 2)
-    per_frame = motion.reshape(n, s, -1, 2).mean(axis=1)  # (T, 1+B, 2)
-    ref = per_frame[0]
-    fine = motion - ref[None]
-    return Truth(t_fine, fine[:, 0], per_frame[:, 0] - ref[0], per_frame[:, 1:] - ref[None, 1:])
+    b = m.scenario.correlator.block_px
+    out = np.zeros(st.shifts.shape)
+    for k in range(1, len(m.frame_t_s)):
+        kr = int(st.ref_index[k])
+        centers = BlockTracker.centers_from(st.ref_corners[k], b) + st.offsets[kr]
+        ground = m.camera.ground_points(centers, float(m.frame_mid_s[kr]), m.terrain.height_at)
+        times = np.concatenate([exposure_times(m, kr, s), exposure_times(m, k, s)])
+        mo = m.camera.image_motion_px(ground, times, float(m.frame_mid_s[kr]))
+        out[k] = mo[s:].mean(axis=0) - mo[:s].mean(axis=0) - (st.offsets[k] - st.offsets[kr])
+    return out
+
+
+def compute_truth(m: Models, st: LoopState) -> Truth:
+    """True motion at the main imager over its integration windows, and of every measurement."""
+    sc = m.scenario
+    duration = len(m.frame_t_s) / sc.camera.tracker.frame_rate_hz
+    cam = m.main_camera
+    centre = cam.focal_plane.center_px[None]
+    tdi = m.line_rate_hz is not None
+    window = m.imager.integration_s(m.line_rate_hz)
+    n_win = max(1, int(np.floor(duration / window + 1e-9)))
+    if not tdi and window > duration:
+        window, n_win = duration, 1
+    dt = min(1.0 / sc.camera.tracker.frame_rate_hz / sc.metrics.samples_per_frame,
+             window / 16.0)
+    per = max(2, int(np.ceil(window / dt)))
+    frac = (np.arange(per) + 0.5) / per
+    t_s = ((np.arange(n_win)[:, None] + frac[None, :]) * window).ravel()
+    win = np.repeat(np.arange(n_win), per)
+    if tdi:
+        starts = np.arange(n_win) * window
+        ground = np.stack([cam.ground_points(centre, float(t0), m.terrain.height_at)[0]
+                           for t0 in starts])  # (W, 3)
+        pose = cam.pose(np.concatenate([starts, t_s]))
+        p0 = project(ground, pose[:n_win], cam.focal_plane)  # (W, 2)
+        moving = Pose(pose.position_m[n_win:].reshape(n_win, per, 3),
+                      pose.enu_from_cam[n_win:].reshape(n_win, per, 3, 3))
+        pw = project(ground[:, None, :], moving, cam.focal_plane)  # (W, per, 2)
+        motion = (pw - p0[:, None, :]).reshape(-1, 2)
+        charge = np.stack([(t_s - starts[win]) * m.line_rate_hz, np.zeros_like(t_s)], axis=-1)
+    else:
+        ground = cam.ground_points(centre, 0.0, m.terrain.height_at)
+        motion = cam.image_motion_px(ground, t_s, 0.0)[:, 0]
+        charge = np.zeros_like(motion)
+    return Truth(t_s, win, window, motion, charge, _meas_truth(m, st), tdi)
 
 
 def summarize(m: Models, st: LoopState, truth: Truth) -> dict:
-    """Metrics with and without compensation, and the tracker's own accuracy."""
+    """Metrics with and without compensation, the tracker's accuracy, and the geometry."""
     sc = m.scenario
-    stage_fine = truth.per_sample(st.offsets)
-    open_loop = truth.center_px
-    closed = truth.center_px - stage_fine
-    w = sc.metrics.main_exposure_s
-    m_open = residual_metrics(truth.t_s, open_loop, w)
-    m_closed = residual_metrics(truth.t_s, closed, w)
-    measured = st.shifts + st.offsets[:, None, :]
-    err = (measured - truth.frame_blocks_px)[1:]
+    zero = np.zeros_like(st.offsets)
+    m_open = residual_metrics(truth.t_s, truth.residual_px(m, zero), truth.window_s)
+    m_closed = residual_metrics(truth.t_s, truth.residual_px(m, st.offsets), truth.window_s)
+    err = (st.shifts - truth.meas_px)[1:]
     ok = st.valid[1:]
-    rms_err = np.sqrt(np.mean(err[ok] ** 2, axis=0)) if ok.any() else np.array([np.nan] * 2)
-    crlb = np.median(st.crlb[1:][ok], axis=0) if ok.any() else np.array([np.nan] * 2)
+    nan2 = np.array([np.nan] * 2)
+    rms_err = np.sqrt(np.mean(err[ok] ** 2, axis=0)) if ok.any() else nan2
+    crlb = np.median(st.crlb[1:][ok], axis=0) if ok.any() else nan2
     return {
         "scenario": sc.name,
         "frames": int(len(m.frame_t_s)),
@@ -277,12 +506,45 @@ def summarize(m: Models, st: LoopState, truth: Truth) -> dict:
         "with_compensation": m_closed.to_dict(),
         "rms_reduction": m_open.rms_total_px / max(m_closed.rms_total_px, 1e-12),
         "tracker": {
+            "reference": "chain" if m.chain else "fixed",
             "valid_fraction": float(ok.mean()),
             "rms_error_px": [float(v) for v in rms_err],
             "median_crlb_px": [float(v) for v in crlb],
-            "bias_px": [float(v) for v in (err[ok].mean(axis=0) if ok.any() else [np.nan] * 2)],
+            "bias_px": [float(v) for v in (err[ok].mean(axis=0) if ok.any() else nan2)],
         },
+        "geometry": geometry_summary(m),
     }
+
+
+def geometry_summary(m: Models) -> dict:
+    """Orbit, pointing, imager and sensor figures of the run (SI units in the key names)."""
+    orbit, cam = m.camera.orbit, m.camera
+    lat, lon, h = orbit.ground_point(0.0)
+    fp = cam.focal_plane
+    ground = cam.ground_points(fp.center_px[None], 0.0, m.terrain.height_at)
+    rng_m = float(np.linalg.norm(ground[0] - cam.pose(np.array(0.0)).position_m))
+    vel = m.main_camera.velocity_field_px_s(m.main_camera.focal_plane.center_px, 0.0,
+                                            m.terrain.height_at, nominal=True)[0]
+    jit = cam.attitude.jitter.rotvec_rad(np.linspace(0.0, m.frame_t_s[-1] + m.exposure_s, 2001))
+    out = {
+        "orbit_period_s": float(getattr(orbit, "period_s", np.nan)),
+        "satellite_height_m": float(h),
+        "subsatellite_lat_lon_deg": [float(lat), float(lon)],
+        "ground_speed_mps": float(orbit.ground_speed_mps(0.0)),
+        "heading_deg": float(orbit.heading_deg(0.0)),
+        "off_nadir_deg": float(cam.attitude.off_nadir_deg(orbit, 0.0)),
+        "slant_range_m": rng_m,
+        "gsd_m": rng_m * fp.ifov_rad,
+        "image_velocity_px_s": [float(v) for v in vel],
+        "jitter_rms_px": [float(v) for v in (jit.std(axis=0) / fp.ifov_rad)],
+        "tracker_snr": m.sensor.snr(exposure_s=m.exposure_s)
+        if m.scenario.camera.tracker.signal == "mean_level" else None,
+        "main_imager": m.imager.kind,
+        "line_rate_hz": m.line_rate_hz,
+    }
+    if hasattr(orbit, "local_time_of_ascending_node_h"):
+        out["local_time_of_ascending_node_h"] = float(orbit.local_time_of_ascending_node_h)
+    return out
 
 
 def write_outputs(m: Models, st: LoopState, truth: Truth, metrics: dict, out: Path,
@@ -290,25 +552,26 @@ def write_outputs(m: Models, st: LoopState, truth: Truth, metrics: dict, out: Pa
     """metrics.json, tracks.csv, recording.rrd and (optionally) frames.npz, atomically."""
     out.mkdir(parents=True, exist_ok=True)
     written = []
-    measured = st.shifts + st.offsets[:, None, :]
     rows = []
     for k, t in enumerate(m.frame_t_s):
         for b in range(len(m.corners)):
-            rows.append([f"{t:.6f}", k, b,
-                         f"{truth.frame_blocks_px[k, b, 0]:.5f}",
-                         f"{truth.frame_blocks_px[k, b, 1]:.5f}",
-                         f"{measured[k, b, 0]:.5f}", f"{measured[k, b, 1]:.5f}",
+            rows.append([f"{t:.6f}", k, b, int(st.ref_index[k]),
+                         f"{truth.meas_px[k, b, 0]:.5f}", f"{truth.meas_px[k, b, 1]:.5f}",
+                         f"{st.shifts[k, b, 0]:.5f}", f"{st.shifts[k, b, 1]:.5f}",
                          f"{st.offsets[k, 0]:.5f}", f"{st.offsets[k, 1]:.5f}",
+                         f"{st.estimate[k, 0]:.5f}", f"{st.estimate[k, 1]:.5f}",
                          int(st.valid[k, b]), f"{st.peaks[k, b]:.3f}"])
-    header = ["t_s", "frame", "block", "true_row_px", "true_col_px", "meas_row_px",
-              "meas_col_px", "stage_row_px", "stage_col_px", "valid", "psr"]
+    header = ["t_s", "frame", "block", "ref_frame", "true_row_px", "true_col_px",
+              "meas_row_px", "meas_col_px", "stage_row_px", "stage_col_px",
+              "estimate_row_px", "estimate_col_px", "valid", "psr"]
     write_csv(out / "tracks.csv", header, rows)
     written.append(out / "tracks.csv")
     write_json(out / "metrics.json", metrics)
     written.append(out / "metrics.json")
     if save_frames:
         write_npz(out / "frames.npz", frames=st.frames, t_s=m.frame_t_s,
-                  true_offset_px=truth.frame_center_px, stage_offset_px=st.offsets,
+                  stage_offset_px=st.offsets, ref_index=st.ref_index,
+                  ref_corners=st.ref_corners, true_shift_px=truth.meas_px,
                   exposure_s=np.array(m.exposure_s))
         written.append(out / "frames.npz")
     if rerun:
@@ -330,7 +593,7 @@ def run_scenario(sc: Scenario, out: Path, save_frames: bool = False, fresh: bool
     state = None if fresh or not ckpt.exists() else LoopState.load(ckpt, sc.digest(), m)
     resumed_from = state.done if state is not None else 0
     st = run_loop(m, state, ckpt, progress)
-    truth = compute_truth(m, BlockTracker.centers_from(m.corners, sc.correlator.block_px))
+    truth = compute_truth(m, st)
     metrics = summarize(m, st, truth)
     files = write_outputs(m, st, truth, metrics, out, save_frames, rerun)
     info = {"wall_s": time.perf_counter() - t_start, "render_s": st.render_s,

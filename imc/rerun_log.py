@@ -21,12 +21,12 @@ def write_recording(path: Path, m: Models, st: LoopState, truth: Truth) -> None:
         rec = rr.RecordingStream("imcsim", recording_id=m.scenario.name)
         rec.save(str(tmp))
         b = m.scenario.correlator.block_px
-        scale = 255.0 / (2.0 * m.sensor.mean_signal_dn)
-        mins = m.corners[:, ::-1].astype(np.float32)  # (x, y) = (col, row)
+        scale = 255.0 / (2.0 * max(float(st.frames[0].mean()), 1.0))
         for k, t in enumerate(m.frame_t_s):
             rec.set_time("time", duration=float(t))
             img = np.clip(st.frames[k] * scale, 0, 255).astype(np.uint8)
             rec.log("tracker/frame", rr.Image(img))
+            mins = st.ref_corners[k][:, ::-1].astype(np.float32)  # (x, y) = (col, row)
             colors = np.where(st.valid[k][:, None], [[40, 220, 80]], [[230, 40, 40]])
             rec.log("tracker/frame/blocks",
                     rr.Boxes2D(mins=mins, sizes=np.full((len(mins), 2), b, np.float32),
@@ -34,15 +34,11 @@ def write_recording(path: Path, m: Models, st: LoopState, truth: Truth) -> None:
                                colors=colors.astype(np.uint8)))
         frame_t = rr.TimeColumn("time", duration=m.frame_t_s)
         fine_t = rr.TimeColumn("time", duration=truth.t_s)
-        measured = st.shifts + st.offsets[:, None, :]
-        valid_mean = np.where(st.valid, 1.0, np.nan)
-        meas_mean = np.nanmean(measured * valid_mean[..., None], axis=1)
-        stage_fine = truth.per_sample(st.offsets)
         series = {
-            "motion/true": (fine_t, truth.center_px),
-            "motion/measured": (frame_t, meas_mean),
-            "motion/stage": (frame_t, st.offsets),
-            "motion/residual_closed_loop": (fine_t, truth.center_px - stage_fine),
+            "motion/true_main_imager": (fine_t, truth.motion_px - truth.charge_px),
+            "motion/estimate": (frame_t, st.estimate),
+            "motion/stage": (fine_t, truth.stage_px(m, st.offsets)),
+            "motion/residual_closed_loop": (fine_t, truth.residual_px(m, st.offsets)),
         }
         for name, (tcol, values) in series.items():
             for axis, label in enumerate(("row_px", "col_px")):

@@ -26,18 +26,43 @@ class _Model(BaseModel):
 
 
 class OrbitConfig(_Model):
-    """Circular orbit placed so that the satellite is over the scene centre at t = 0."""
+    """The orbit. ``circular`` and ``sun_synchronous`` orbits are placed so that the line of
+    sight (attitude.roll_deg / pitch_deg) meets the scene centre at t = 0 (mode target) or
+    half-way through the run (scanning modes); ``elements`` and
+    ``tle`` orbits are taken as given and need attitude.mode 'target'."""
 
+    kind: Literal["sun_synchronous", "circular", "elements", "tle"] = Field(
+        "sun_synchronous", description="sun_synchronous (inclination from the altitude), "
+        "circular, elements (Keplerian) or tle (SGP4)")
     altitude_m: float = Field(681_000.0, gt=150_000.0, lt=50_000_000.0,
-                              description="altitude above the WGS84 equatorial radius, m")
-    inclination_deg: float = Field(98.1, ge=0.0, le=180.0, description="inclination, deg")
+                              description="circular / sun_synchronous: altitude above the "
+                              "WGS84 equatorial radius, m")
+    inclination_deg: float = Field(98.1, ge=0.0, le=180.0,
+                                   description="circular: inclination, deg")
     epoch_utc: datetime = Field(datetime(2026, 6, 21, 10, 30),
                                 description="UTC time of t = 0 (ISO 8601)")
     pass_direction: Literal["descending", "ascending"] = Field(
-        "descending", description="which pass crosses the scene at t = 0")
+        "descending", description="circular / sun_synchronous: which pass crosses the scene")
+    j2: bool = Field(True, description="apply the J2 secular drift (node, perigee, anomaly)")
+    semi_major_axis_m: float | None = Field(None, gt=6_478_137.0,
+                                            description="elements: semi-major axis, m")
+    eccentricity: float = Field(0.0, ge=0.0, lt=1.0, description="elements: eccentricity")
+    raan_deg: float = Field(0.0, description="elements: right ascension of the node, deg")
+    arg_perigee_deg: float = Field(0.0, description="elements: argument of perigee, deg")
+    mean_anomaly_deg: float = Field(0.0, description="elements: mean anomaly at epoch, deg")
+    tle_line1: str | None = Field(None, description="tle: line 1")
+    tle_line2: str | None = Field(None, description="tle: line 2")
+
+    @model_validator(mode="after")
+    def _kind_fields(self) -> OrbitConfig:
+        if self.kind == "elements" and self.semi_major_axis_m is None:
+            raise ValueError("kind 'elements' needs semi_major_axis_m (m)")
+        if self.kind == "tle" and not (self.tle_line1 and self.tle_line2):
+            raise ValueError("kind 'tle' needs tle_line1 and tle_line2")
+        return self
 
 
-class JitterConfig(_Model):
+class SinusoidConfig(_Model):
     """One sinusoidal attitude-jitter term; give the amplitude in urad or in px (IFOVs)."""
 
     axis: Literal["roll", "pitch", "yaw"] = Field(
@@ -49,18 +74,108 @@ class JitterConfig(_Model):
     phase_deg: float = Field(0.0, description="phase at t = 0, deg")
 
     @model_validator(mode="after")
-    def _one_amplitude(self) -> JitterConfig:
+    def _one_amplitude(self) -> SinusoidConfig:
         if (self.amplitude_urad is None) == (self.amplitude_px is None):
             raise ValueError("give exactly one of amplitude_urad or amplitude_px")
         return self
 
 
+
+class RandomJitterConfig(_Model):
+    """Band-limited random jitter, PSD ~ f**slope on [f_min_hz, f_max_hz], seeded."""
+
+    axis: Literal["roll", "pitch", "yaw"] = Field(description="body axis")
+    rms_urad: float | None = Field(None, ge=0.0, description="RMS over the band, urad")
+    rms_px: float | None = Field(None, ge=0.0, description="RMS over the band, px (IFOVs)")
+    f_min_hz: float = Field(gt=0.0, description="lowest frequency, Hz")
+    f_max_hz: float = Field(gt=0.0, description="highest frequency, Hz")
+    slope: float = Field(0.0, ge=-4.0, le=4.0,
+                         description="PSD power-law exponent (0: white, -2: random walk)")
+
+    @model_validator(mode="after")
+    def _check(self) -> RandomJitterConfig:
+        if (self.rms_urad is None) == (self.rms_px is None):
+            raise ValueError("give exactly one of rms_urad or rms_px")
+        if self.f_max_hz <= self.f_min_hz:
+            raise ValueError("f_max_hz must exceed f_min_hz")
+        return self
+
+
+class HarmonicConfig(_Model):
+    number: float = Field(gt=0.0, description="harmonic number (multiple of the wheel speed)")
+    amplitude_urad: float | None = Field(None, ge=0.0, description="amplitude, urad")
+    amplitude_px: float | None = Field(None, ge=0.0, description="amplitude, px (IFOVs)")
+
+    @model_validator(mode="after")
+    def _one_amplitude(self) -> HarmonicConfig:
+        if (self.amplitude_urad is None) == (self.amplitude_px is None):
+            raise ValueError("give exactly one of amplitude_urad or amplitude_px")
+        return self
+
+
+class WheelConfig(_Model):
+    """Reaction-wheel harmonics; amplitudes grow with (speed / speed_hz)**2; random phases."""
+
+    axis: Literal["roll", "pitch", "yaw"] = Field(description="body axis")
+    speed_hz: float = Field(gt=0.0, description="wheel speed at t = 0, rev/s (Hz)")
+    speed_rate_hz_per_s: float = Field(0.0, description="wheel speed ramp, Hz/s")
+    harmonics: tuple[HarmonicConfig, ...] = Field(min_length=1,
+                                                  description="harmonics at speed_hz")
+
+
+class JitterProfileConfig(_Model):
+    """Attitude jitter: lists of sinusoidal, random (PSD) and reaction-wheel terms. Lists left
+    out are empty. Leaving out the whole section gives the default profile (DEFAULT_JITTER):
+    roll 0.65 Hz at 1 px, pitch 4.3 Hz at 0.1 px, and a 35 Hz reaction wheel's 1st and 2nd
+    harmonics on pitch at 0.02 px each."""
+
+    sinusoids: tuple[SinusoidConfig, ...] = Field((), description="sinusoidal terms")
+    random: tuple[RandomJitterConfig, ...] = Field((), description="random (PSD) terms")
+    wheels: tuple[WheelConfig, ...] = Field((), description="reaction-wheel harmonic series")
+
+
+#: An IKONOS-class default from measured missions: ZY-3's dominant 0.65 Hz at 1 px
+#: (cross-track), QuickBird's 4.3 Hz at 0.1 px, and reaction-wheel harmonics (35 Hz wheel,
+#: 1st and 2nd harmonic) at 0.02 px (../shared/notes/domain-facts.md).
+DEFAULT_JITTER = JitterProfileConfig(
+    sinusoids=(SinusoidConfig(axis="roll", frequency_hz=0.65, amplitude_px=1.0),
+               SinusoidConfig(axis="pitch", frequency_hz=4.3, amplitude_px=0.1)),
+    wheels=(WheelConfig(axis="pitch", speed_hz=35.0,
+                        harmonics=(HarmonicConfig(number=1.0, amplitude_px=0.02),
+                                   HarmonicConfig(number=2.0, amplitude_px=0.02))),),
+)
+
+
 class AttitudeConfig(_Model):
-    mode: Literal["target", "nadir"] = Field(
+    mode: Literal["target", "nadir", "off_nadir"] = Field(
         "target",
         description="'target': line of sight held on the scene centre (staring frame camera);"
-        " 'nadir': geocentric nadir (the image then flows ~8,300 px/s along the rows)")
-    jitter: tuple[JitterConfig, ...] = Field((), description="sinusoidal jitter terms")
+        " 'nadir': geocentric nadir (the image then flows ~8,300 px/s along the rows);"
+        " 'off_nadir': fixed roll_deg / pitch_deg from nadir (scanning)")
+    roll_deg: float = Field(0.0, ge=-60.0, le=60.0,
+                            description="look angle at t = 0 about the flight axis, deg "
+                            "(+: left of the track); off_nadir / target")
+    pitch_deg: float = Field(0.0, ge=-60.0, le=60.0,
+                             description="look angle at t = 0 about the cross axis, deg "
+                             "(+: ahead); off_nadir / target")
+    yaw_steering: bool = Field(False, description="turn about the line of sight so the ground "
+                               "flows exactly along the rows (nadir / off_nadir; TDI needs it)")
+    jitter: JitterProfileConfig = Field(DEFAULT_JITTER, description="jitter profile (a list: "
+                                        "sinusoids only; [] for none)")
+
+    @field_validator("jitter", mode="before")
+    @classmethod
+    def _list_is_sinusoids(cls, v):
+        return {"sinusoids": v} if isinstance(v, list | tuple) else v
+
+    @model_validator(mode="after")
+    def _check(self) -> AttitudeConfig:
+        if self.mode == "nadir" and (self.roll_deg or self.pitch_deg):
+            raise ValueError("mode 'nadir' looks straight down: use mode 'off_nadir' for "
+                             "roll_deg / pitch_deg")
+        if self.mode == "target" and self.yaw_steering:
+            raise ValueError("yaw_steering needs a scanning mode (nadir or off_nadir)")
+        return self
 
 
 class SceneConfig(_Model):
@@ -88,15 +203,27 @@ class SceneConfig(_Model):
 
 
 class TrackerSensorConfig(_Model):
-    """The tracking matrix sensor on the focal plane (centred on the principal point)."""
+    """The tracking matrix sensor on the focal plane."""
 
     rows: int = Field(256, ge=16, le=4096, description="sensor rows, px")
     cols: int = Field(256, ge=16, le=4096, description="sensor columns, px")
+    center_offset_px: tuple[float, float] = Field(
+        (0.0, 0.0), description="sensor centre relative to the principal point, (row, col) px")
     frame_rate_hz: float = Field(100.0, gt=0.0, le=100_000.0, description="frame rate, Hz")
     exposure_s: float | None = Field(None, gt=0.0,
                                      description="exposure, s (default: the frame period)")
-    mean_signal_dn: float = Field(100.0, gt=0.0, description="mean signal, DN")
-    noise_sigma_dn: float = Field(5.0, ge=0.0, description="additive noise sigma, DN")
+    signal: Literal["mean_level", "radiometric"] = Field(
+        "mean_level", description="mean_level: frame 0 scaled to mean_signal_dn; "
+        "radiometric: electrons from the rendered radiance, camera.optics and camera.radiometry")
+    mean_signal_dn: float = Field(100.0, gt=0.0, description="mean_level: mean signal, DN")
+    noise_model: Literal["additive", "physical"] = Field(
+        "physical", description="physical: shot + dark + read + quantisation (+ "
+        "noise_sigma_dn); additive: Gaussian noise_sigma_dn only (the paper's protocol)")
+    noise_sigma_dn: float = Field(0.0, ge=0.0, description="additive Gaussian noise sigma, DN")
+    gain_e_per_dn: float = Field(4.0, gt=0.0, description="conversion gain, e-/DN")
+    full_well_e: float = Field(20_000.0, gt=0.0, description="full-well capacity, e-")
+    read_noise_e: float = Field(10.0, ge=0.0, description="read noise, e- rms")
+    dark_current_e_per_s: float = Field(50.0, ge=0.0, description="dark current, e-/s/pixel")
     adc_bits: int = Field(12, ge=1, le=16, description="ADC depth, bits")
 
     @model_validator(mode="after")
@@ -106,10 +233,47 @@ class TrackerSensorConfig(_Model):
         return self
 
 
+class OpticsConfig(_Model):
+    aperture_m: float = Field(0.70, gt=0.0, description="entrance-pupil diameter, m")
+    wavelength_m: float = Field(0.675e-6, gt=1e-7, lt=2e-5,
+                                description="effective wavelength of the band, m")
+    blur_sigma_px: float = Field(0.0, ge=0.0, le=10.0,
+                                 description="extra Gaussian blur (aberrations), px")
+    transmission: float = Field(0.8, gt=0.0, le=1.0, description="optical transmission")
+    diffraction: bool = Field(True, description="apply the diffraction MTF to tracker frames")
+
+
+class RadiometryConfig(_Model):
+    solar_irradiance_w_m2_um: float = Field(1500.0, gt=0.0,
+                                            description="band solar spectral irradiance "
+                                            "at the top of the atmosphere, W m^-2 um^-1")
+    atmosphere_transmittance: float = Field(0.7, gt=0.0, le=1.0,
+                                            description="two-way atmospheric transmittance")
+    bandwidth_m: float = Field(0.45e-6, gt=0.0, description="spectral bandwidth, m")
+    quantum_efficiency: float = Field(0.5, gt=0.0, le=1.0, description="detector QE")
+
+
+class MainImagerConfig(_Model):
+    """The main imager whose residual blur the metrics report."""
+
+    kind: Literal["frame", "tdi"] = Field("frame", description="frame camera or TDI pushbroom")
+    center_offset_px: tuple[float, float] = Field(
+        (0.0, 0.0), description="imager centre relative to the principal point, (row, col) px")
+    exposure_s: float = Field(0.1, gt=0.0, description="frame: exposure, s")
+    stages: int = Field(32, ge=1, le=256, description="tdi: number of TDI stages")
+    line_rate_hz: float | None = Field(None, gt=0.0, description="tdi: line rate, Hz "
+                                       "(default: synchronous with the predicted image motion)")
+    clock_phases: int = Field(0, ge=0, le=8, description="tdi: charge steps per line "
+                              "(0: continuous transfer)")
+
+
 class CameraConfig(_Model):
     focal_length_m: float = Field(10.0, gt=0.0, description="focal length, m")
     pixel_pitch_m: float = Field(12e-6, gt=0.0, lt=1e-3, description="pixel pitch, m")
+    optics: OpticsConfig = OpticsConfig()
+    radiometry: RadiometryConfig = RadiometryConfig()
     tracker: TrackerSensorConfig = TrackerSensorConfig()
+    main_imager: MainImagerConfig = MainImagerConfig()
 
 
 class CorrelatorConfig(_Model):
@@ -133,7 +297,6 @@ class CompensationConfig(_Model):
 
 
 class MetricsConfig(_Model):
-    main_exposure_s: float = Field(0.1, gt=0.0, description="main-imager exposure for MTF, s")
     samples_per_frame: int = Field(8, ge=2, le=256,
                                    description="truth samples per tracker exposure")
 
@@ -160,6 +323,12 @@ class Scenario(_Model):
     @model_validator(mode="after")
     def _cross(self) -> Scenario:
         t = self.camera.tracker
+        if self.orbit.kind in ("elements", "tle") and self.attitude.mode != "target":
+            raise ValueError(f"orbit.kind '{self.orbit.kind}' is not placed over the scene: "
+                             "use attitude.mode 'target' (stare at the scene centre)")
+        if self.camera.main_imager.kind == "tdi" and self.attitude.mode == "target":
+            raise ValueError("camera.main_imager.kind 'tdi' needs a scanning attitude: set "
+                             "attitude.mode to 'nadir' or 'off_nadir' (with yaw_steering)")
         if self.correlator.block_px > min(t.rows, t.cols):
             raise ValueError(
                 f"correlator.block_px ({self.correlator.block_px}) exceeds the tracker sensor "

@@ -1,10 +1,10 @@
-"""Orbit propagation, Earth frames (WGS84) and spacecraft attitude (pointing + jitter).
+"""Orbit propagation, Earth frames (WGS84), solar position and spacecraft attitude.
 
 Units: SI (m, s, rad) inside; angles in degrees only where a name says ``_deg``.
 Frames are described in ``docs/conventions.md``.
 """
 
-from orbit.attitude import Attitude, JitterTerm
+from orbit.attitude import Attitude
 from orbit.frames import (
     LocalFrame,
     ecef_to_geodetic,
@@ -12,15 +12,27 @@ from orbit.frames import (
     geodetic_to_ecef,
     gmst_rad,
 )
-from orbit.kepler import CircularOrbit
+from orbit.jitter import JitterSeries, JitterTerm, RandomJitter, WheelJitter, realize_jitter
+from orbit.kepler import EarthOrbit, Orbit, sun_synchronous_inclination_deg
+from orbit.sun import sun_direction_eci, sun_elevation_azimuth_deg
+from orbit.tle import TleOrbit
 
 __all__ = [
     "Attitude",
-    "CircularOrbit",
+    "EarthOrbit",
+    "JitterSeries",
     "JitterTerm",
     "LocalFrame",
+    "Orbit",
+    "RandomJitter",
+    "TleOrbit",
+    "WheelJitter",
     "ecef_to_geodetic",
     "eci_to_ecef_matrix",
     "geodetic_to_ecef",
     "gmst_rad",
+    "realize_jitter",
+    "sun_direction_eci",
+    "sun_elevation_azimuth_deg",
+    "sun_synchronous_inclination_deg",
 ]

@@ -16,7 +16,12 @@ WGS84_A_M = 6378137.0
 WGS84_F = 1.0 / 298.257223563
 WGS84_E2 = WGS84_F * (2.0 - WGS84_F)
 GM_EARTH_M3_S2 = 3.986004418e14
-OMEGA_EARTH_RAD_S = 7.2921150e-5
+J2_EARTH = 1.08262668e-3
+_GMST_DEG_PER_DAY = 360.98564736629
+#: rotation rate of ECEF against ECI, rad/s: the rate of the GMST formula below (the WGS84
+#: defining constant 7.292115e-5 rounds it); ECEF velocities use this one so that positions
+#: and velocities stay consistent to 1e-12.
+OMEGA_EARTH_RAD_S = np.deg2rad(_GMST_DEG_PER_DAY) / 86400.0
 _J2000_JD = 2451545.0
 
 
@@ -29,9 +34,14 @@ def julian_date(epoch_utc: np.datetime64) -> float:
 
 
 def gmst_rad(epoch_utc: np.datetime64, t_s: np.ndarray | float = 0.0) -> np.ndarray:
-    """Greenwich mean sidereal angle (rad) at ``epoch_utc + t_s`` (IAU 1982, UT1 = UTC)."""
-    d = julian_date(epoch_utc) - _J2000_JD + np.asarray(t_s, dtype=np.float64) / 86400.0
-    deg = 280.46061837 + 360.98564736629 * d
+    """Greenwich mean sidereal angle (rad) at ``epoch_utc + t_s`` (IAU 1982, UT1 = UTC).
+
+    The angle at the epoch is reduced modulo 360 deg first, so t_s keeps its full float64
+    resolution (a smooth angle to 1e-15 rad over a run, not 1e-11).
+    """
+    d0 = julian_date(epoch_utc) - _J2000_JD
+    deg0 = np.mod(280.46061837 + _GMST_DEG_PER_DAY * d0, 360.0)
+    deg = deg0 + (_GMST_DEG_PER_DAY / 86400.0) * np.asarray(t_s, dtype=np.float64)
     return np.deg2rad(np.mod(deg, 360.0))
 
 
@@ -46,6 +56,40 @@ def eci_to_ecef_matrix(gmst: np.ndarray | float) -> np.ndarray:
     m[..., 1, 1] = c
     m[..., 2, 2] = 1.0
     return m
+
+
+def eci_to_ecef_rate(gmst: np.ndarray | float) -> np.ndarray:
+    """Time derivative (..., 3, 3) of :func:`eci_to_ecef_matrix`, 1/s."""
+    g = np.asarray(gmst, dtype=np.float64)
+    c, s = np.cos(g), np.sin(g)
+    m = np.zeros(g.shape + (3, 3))
+    m[..., 0, 0] = -s
+    m[..., 0, 1] = c
+    m[..., 1, 0] = -c
+    m[..., 1, 1] = -s
+    return m * OMEGA_EARTH_RAD_S
+
+
+def ray_ellipsoid_m(origin_m: np.ndarray, direction: np.ndarray, h_m: float = 0.0) -> np.ndarray:
+    """Distance (...) along unit rays (ECEF) to the WGS84 ellipsoid raised by h_m; NaN if missed.
+
+    The raised surface is approximated by the ellipsoid with semi-axes a + h, b + h (exact for
+    h = 0; < 1 mm of height error for |h| < 10 km).
+    """
+    o = np.asarray(origin_m, dtype=np.float64)
+    d = np.asarray(direction, dtype=np.float64)
+    a = WGS84_A_M + h_m
+    b = WGS84_A_M * (1.0 - WGS84_F) + h_m
+    w = np.array([1.0 / a, 1.0 / a, 1.0 / b])
+    os_, ds = o * w, d * w
+    qa = np.sum(ds * ds, axis=-1)
+    qb = 2.0 * np.sum(os_ * ds, axis=-1)
+    qc = np.sum(os_ * os_, axis=-1) - 1.0
+    disc = qb * qb - 4.0 * qa * qc
+    with np.errstate(invalid="ignore"):
+        # the nearer root, written to avoid cancellation (qb < 0 when looking at the Earth)
+        s = (2.0 * qc) / (-qb + np.sqrt(disc))
+    return np.where((disc >= 0.0) & (s > 0.0), s, np.nan)
 
 
 def geodetic_to_ecef(lat_deg, lon_deg, h_m) -> np.ndarray:
@@ -75,11 +119,15 @@ def ecef_to_geodetic(xyz_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
     return np.rad2deg(lat), np.rad2deg(lon), h
 
 
-def enu_matrix(lat_deg: float, lon_deg: float) -> np.ndarray:
-    """Rotation (3, 3) taking ECEF vectors to local east-north-up: v_enu = M @ v_ecef."""
-    lat, lon = np.deg2rad(lat_deg), np.deg2rad(lon_deg)
+def enu_matrix(lat_deg, lon_deg) -> np.ndarray:
+    """Rotations (..., 3, 3) taking ECEF vectors to local east-north-up: v_enu = M @ v_ecef."""
+    lat = np.deg2rad(np.asarray(lat_deg, dtype=np.float64))
+    lon = np.deg2rad(np.asarray(lon_deg, dtype=np.float64))
     sl, cl, so, co = np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon)
-    return np.array([[-so, co, 0.0], [-sl * co, -sl * so, cl], [cl * co, cl * so, sl]])
+    zero = np.zeros_like(sl * so)
+    rows = [[-so + zero, co + zero, zero], [-sl * co, -sl * so, cl + zero],
+            [cl * co, cl * so, sl + zero]]
+    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
 
 
 @dataclass(frozen=True)

@@ -6,9 +6,10 @@ import pytest
 from camera.geometry import FocalPlane, project
 from camera.motion import CameraModel
 from correlator import measure_shift
-from orbit.attitude import Attitude, JitterTerm
+from orbit.attitude import Attitude
 from orbit.frames import LocalFrame
-from orbit.kepler import CircularOrbit
+from orbit.jitter import JitterTerm
+from orbit.kepler import Orbit
 
 EPOCH = np.datetime64("2026-06-21T10:30:00")
 FP = FocalPlane(10.0, 12e-6, 256, 256)
@@ -16,7 +17,7 @@ FP = FocalPlane(10.0, 12e-6, 256, 256)
 
 def _model(mode="target", jitter=()):
     frame = LocalFrame(35.0, 10.0, 0.0)
-    orb = CircularOrbit.over_point(35.0, 10.0, 681e3, 98.1, EPOCH)
+    orb = Orbit.over_point(35.0, 10.0, 681e3, 98.1, EPOCH)
     att = Attitude(mode=mode, target_ecef_m=tuple(frame.origin_ecef_m) if mode == "target"
                    else None, jitter=jitter)
     return CameraModel(orb, att, frame, FP)

@@ -34,7 +34,53 @@ def test_quickstart_loads_with_ikonos_values(quickstart):
     assert quickstart.n_frames == 100
     assert quickstart.exposure_s == pytest.approx(0.01)
     assert quickstart.camera.focal_length_m == 10.0
-    assert quickstart.attitude.jitter[0].frequency_hz == 2.0
+    assert quickstart.attitude.jitter.sinusoids[0].frequency_hz == 2.0
+    assert quickstart.attitude.jitter.wheels == ()  # a given jitter section replaces the default
+
+
+def test_defaults_are_ikonos_like():
+    from imc.scenario import DEFAULT_JITTER, parse_scenario
+
+    sc = parse_scenario({})
+    assert sc.orbit.kind == "sun_synchronous" and sc.orbit.altitude_m == 681e3
+    assert sc.attitude.jitter == DEFAULT_JITTER
+    f = sorted(s.frequency_hz for s in DEFAULT_JITTER.sinusoids)
+    assert f == [0.65, 4.3]
+    assert DEFAULT_JITTER.wheels[0].harmonics[0].amplitude_px == 0.02
+    assert sc.camera.optics.aperture_m == 0.70 and sc.camera.main_imager.kind == "frame"
+
+
+@pytest.mark.parametrize(
+    "data, words",
+    [
+        ({"orbit": {"kind": "tle"}}, "orbit: kind 'tle' needs tle_line1"),
+        ({"orbit": {"kind": "elements"}}, "semi_major_axis_m"),
+        ({"orbit": {"kind": "tle", "tle_line1": "1 x", "tle_line2": "2 y"},
+          "attitude": {"mode": "nadir"}}, "use attitude.mode 'target'"),
+        ({"camera": {"main_imager": {"kind": "tdi"}}}, "needs a scanning attitude"),
+        ({"attitude": {"mode": "nadir", "roll_deg": 10}}, "use mode 'off_nadir'"),
+        ({"attitude": {"mode": "target", "yaw_steering": True}}, "scanning mode"),
+        ({"attitude": {"jitter": {"random": [{"axis": "roll", "rms_px": 1, "f_min_hz": 5,
+                                              "f_max_hz": 1}]}}}, "f_max_hz must exceed"),
+    ],
+)
+def test_new_sections_name_the_field_and_the_fix(data, words):
+    from imc.scenario import ScenarioError, parse_scenario
+
+    with pytest.raises(ScenarioError) as e:
+        parse_scenario(data)
+    assert words in str(e.value)
+    assert "\n" not in str(e.value)
+
+
+def test_bad_tle_is_a_scenario_error():
+    from imc.pipeline import build_models
+    from imc.scenario import ScenarioError, parse_scenario
+
+    sc = parse_scenario({"orbit": {"kind": "tle", "tle_line1": "1 25544U garbage",
+                                   "tle_line2": "2 25544 garbage"}})
+    with pytest.raises(ScenarioError, match="orbit: .*TLE"):
+        build_models(sc)
 
 
 @pytest.mark.parametrize(
@@ -46,7 +92,7 @@ def test_quickstart_loads_with_ikonos_values(quickstart):
         ({"correlator.block_px": 512}, "block_px"),
         ({"scene.sizee_m": 5}, "scene.sizee_m"),
         ({"attitude.jitter": [{"axis": "pitch", "frequency_hz": 2.0}]},
-         "attitude.jitter.0"),
+         "attitude.jitter.sinusoids.0"),
         ({"camera.tracker.exposure_s": 0.5}, "camera.tracker"),
     ],
 )
@@ -101,3 +147,15 @@ def test_info_names_the_variant():
     assert res.exit_code == 0
     assert "mitsuba variant:" in res.output
     assert any(v in res.output for v in ("llvm_ad_rgb", "cuda_ad_rgb", "scalar_rgb"))
+
+
+def test_scenario_reference_is_current():
+    import importlib.util
+
+    from conftest import ROOT
+
+    spec = importlib.util.spec_from_file_location("gen", ROOT / "scripts" / "gen_scenario_doc.py")
+    gen = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(gen)
+    assert (ROOT / "docs" / "scenario.md").read_text() == gen.render(), (
+        "docs/scenario.md is stale: run .venv/bin/python scripts/gen_scenario_doc.py")

@@ -33,30 +33,24 @@ class CameraModel:
     def pose(self, t_s: np.ndarray, nominal: bool = False) -> Pose:
         """Camera poses in ENU at times t_s (s since the orbit epoch); jitter-free if nominal."""
         t = np.asarray(t_s, dtype=np.float64)
-        r_eci, _ = self.orbit.state_eci(t)
+        r_ecef, _ = self.orbit.state_ecef(t)
         ecef_from_eci = eci_to_ecef_matrix(gmst_rad(self.orbit.epoch_utc, t))
-        r_ecef = np.einsum("...ij,...j->...i", ecef_from_eci, r_eci)
-        eci_from_body = (
-            self.attitude.nominal_eci_from_body(self.orbit, t)
-            if nominal
-            else self.attitude.eci_from_body(self.orbit, t)
-        )
+        eci_from_body = self.attitude.eci_from_body(self.orbit, t, nominal)
         enu_from_cam = self.frame.enu_from_ecef @ ecef_from_eci @ eci_from_body @ BODY_FROM_CAM
         return Pose(self.frame.ecef_to_enu(r_ecef), enu_from_cam)
 
-    def pose_rate(self, t_s: np.ndarray, nominal: bool = False):
-        """Time derivatives of :meth:`pose`: camera velocity (..., 3) in m/s (ENU) and
+    def pose_and_rate(self, t_s: np.ndarray, nominal: bool = False):
+        """:meth:`pose` and its time derivatives: camera velocity (..., 3) in m/s (ENU) and
         d(enu_from_cam)/dt (..., 3, 3) in 1/s."""
         t = np.asarray(t_s, dtype=np.float64)
-        _, v_ecef = self.orbit.state_ecef(t)
+        r_ecef, v_ecef = self.orbit.state_ecef(t)
         g = gmst_rad(self.orbit.epoch_utc, t)
         m, mdot = eci_to_ecef_matrix(g), eci_to_ecef_rate(g)
-        b = (self.attitude.nominal_eci_from_body(self.orbit, t) if nominal
-             else self.attitude.eci_from_body(self.orbit, t))
-        bdot = self.attitude.eci_from_body_rate(self.orbit, t, nominal)
+        b, bdot = self.attitude.eci_from_body_and_rate(self.orbit, t, nominal)
         e = self.frame.enu_from_ecef
+        pose = Pose(self.frame.ecef_to_enu(r_ecef), e @ m @ b @ BODY_FROM_CAM)
         rdot = e @ (mdot @ b + m @ bdot) @ BODY_FROM_CAM
-        return np.einsum("ij,...j->...i", e, v_ecef), rdot
+        return pose, np.einsum("ij,...j->...i", e, v_ecef), rdot
 
     def project(self, points_enu_m: np.ndarray, t_s: np.ndarray, nominal: bool = False):
         """Pixel (row, col) of ENU points at times t_s (no stage offset), float64."""
@@ -87,8 +81,7 @@ class CameraModel:
         """
         pts = np.atleast_2d(np.asarray(points_enu_m, dtype=np.float64))
         t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
-        pose = self.pose(t, nominal)
-        cdot, rdot = self.pose_rate(t, nominal)
+        pose, cdot, rdot = self.pose_and_rate(t, nominal)
         d = pts[None] - pose.position_m[:, None, :]  # (T, P, 3)
         q = np.einsum("tji,tpj->tpi", pose.enu_from_cam, d)
         qd = (np.einsum("tji,tpj->tpi", rdot, d)

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from camera.geometry import FocalPlane, Pose, project
-from camera.imager import FrameImager, TdiImager, synchronous_line_rate_hz
+from camera.imager import FrameImager, MainImager, TdiImager, synchronous_line_rate_hz
 from camera.motion import CameraModel
 from camera.optics import Optics
 from camera.sensor import Radiometry, SensorModel
@@ -51,8 +51,9 @@ class Models:
     scenario: Scenario
     camera: CameraModel  # the tracker sensor's view
     main_camera: CameraModel  # the main imager's view (same orbit and attitude)
-    imager: FrameImager | TdiImager
+    imager: MainImager
     line_rate_hz: float | None
+    main_velocity_px_s: np.ndarray  # predicted (nominal) image velocity at the imager centre
     terrain: Terrain
     optics: Optics
     radiometry: Radiometry
@@ -152,21 +153,21 @@ def build_models(sc: Scenario) -> Models:
                                  sc.scene.relief_rms_m, np.random.default_rng([sc.seed, 0]))
     mi = c.main_imager
     if mi.kind == "tdi":
-        imager: FrameImager | TdiImager = TdiImager(
+        imager: MainImager = TdiImager(
             stages=mi.stages, line_rate_hz=mi.line_rate_hz, clock_phases=mi.clock_phases,
             center_offset_px=mi.center_offset_px)
     else:
         imager = FrameImager(exposure_s=mi.exposure_s, center_offset_px=mi.center_offset_px)
     main_cam = dataclasses.replace(cam, focal_plane=imager.focal_plane(c.focal_length_m,
                                                                       c.pixel_pitch_m))
+    velocity = main_cam.velocity_field_px_s(main_cam.focal_plane.center_px, 0.0,
+                                            terrain.height_at, nominal=True)[0]
     line_rate = None
     if mi.kind == "tdi":
         line_rate = mi.line_rate_hz
         if line_rate is None:
-            v = main_cam.velocity_field_px_s(main_cam.focal_plane.center_px, 0.0,
-                                             terrain.height_at, nominal=True)
             try:
-                line_rate = synchronous_line_rate_hz(v[0])
+                line_rate = synchronous_line_rate_hz(velocity)
             except ValueError as e:
                 raise ScenarioError(f"camera.main_imager: {e}") from None
     o = c.optics
@@ -178,6 +179,7 @@ def build_models(sc: Scenario) -> Models:
         main_camera=main_cam,
         imager=imager,
         line_rate_hz=line_rate,
+        main_velocity_px_s=velocity,
         terrain=terrain,
         optics=Optics(c.focal_length_m, o.aperture_m, o.wavelength_m, c.pixel_pitch_m,
                       o.blur_sigma_px, o.transmission, o.diffraction),
@@ -313,7 +315,8 @@ ProgressFn = Callable[[int, int], None]
 
 def charge_motion_px(m: Models, t_s: np.ndarray) -> np.ndarray:
     """Motion (..., 2) the main imager follows by itself since t = 0: TDI charge transfer along
-    rows (continuous), zero for a frame imager."""
+    rows, zero for a frame imager. Continuous (clock steps left out): the stage is driven to
+    follow the mean charge motion."""
     t = np.asarray(t_s, dtype=np.float64)
     if m.line_rate_hz is None:
         return np.zeros(t.shape + (2,))
@@ -441,10 +444,15 @@ def _meas_truth(m: Models, st: LoopState) -> np.ndarray:
     s = m.scenario.metrics.samples_per_frame
     b = m.scenario.correlator.block_px
     out = np.zeros(st.shifts.shape)
+    grounds: dict[tuple[int, bytes], np.ndarray] = {}  # a fixed reference is intersected once
     for k in range(1, len(m.frame_t_s)):
         kr = int(st.ref_index[k])
-        centers = BlockTracker.centers_from(st.ref_corners[k], b) + st.offsets[kr]
-        ground = m.camera.ground_points(centers, float(m.frame_mid_s[kr]), m.terrain.height_at)
+        key = (kr, st.ref_corners[k].tobytes())
+        if key not in grounds:
+            centers = BlockTracker.centers_from(st.ref_corners[k], b) + st.offsets[kr]
+            grounds[key] = m.camera.ground_points(centers, float(m.frame_mid_s[kr]),
+                                                  m.terrain.height_at)
+        ground = grounds[key]
         times = np.concatenate([exposure_times(m, kr, s), exposure_times(m, k, s)])
         mo = m.camera.image_motion_px(ground, times, float(m.frame_mid_s[kr]))
         out[k] = mo[s:].mean(axis=0) - mo[:s].mean(axis=0) - (st.offsets[k] - st.offsets[kr])
@@ -478,7 +486,7 @@ def compute_truth(m: Models, st: LoopState) -> Truth:
                       pose.enu_from_cam[n_win:].reshape(n_win, per, 3, 3))
         pw = project(ground[:, None, :], moving, cam.focal_plane)  # (W, per, 2)
         motion = (pw - p0[:, None, :]).reshape(-1, 2)
-        charge = np.stack([(t_s - starts[win]) * m.line_rate_hz, np.zeros_like(t_s)], axis=-1)
+        charge = m.imager.charge_motion_px(t_s - starts[win], m.line_rate_hz)
     else:
         ground = cam.ground_points(centre, 0.0, m.terrain.height_at)
         motion = cam.image_motion_px(ground, t_s, 0.0)[:, 0]
@@ -523,8 +531,6 @@ def geometry_summary(m: Models) -> dict:
     fp = cam.focal_plane
     ground = cam.ground_points(fp.center_px[None], 0.0, m.terrain.height_at)
     rng_m = float(np.linalg.norm(ground[0] - cam.pose(np.array(0.0)).position_m))
-    vel = m.main_camera.velocity_field_px_s(m.main_camera.focal_plane.center_px, 0.0,
-                                            m.terrain.height_at, nominal=True)[0]
     jit = cam.attitude.jitter.rotvec_rad(np.linspace(0.0, m.frame_t_s[-1] + m.exposure_s, 2001))
     out = {
         "orbit_period_s": float(getattr(orbit, "period_s", np.nan)),
@@ -535,7 +541,7 @@ def geometry_summary(m: Models) -> dict:
         "off_nadir_deg": float(cam.attitude.off_nadir_deg(orbit, 0.0)),
         "slant_range_m": rng_m,
         "gsd_m": rng_m * fp.ifov_rad,
-        "image_velocity_px_s": [float(v) for v in vel],
+        "image_velocity_px_s": [float(v) for v in m.main_velocity_px_s],
         "jitter_rms_px": [float(v) for v in (jit.std(axis=0) / fp.ifov_rad)],
         "tracker_snr": m.sensor.snr(exposure_s=m.exposure_s)
         if m.scenario.camera.tracker.signal == "mean_level" else None,

@@ -62,6 +62,13 @@ class OrbitConfig(_Model):
         return self
 
 
+def _exactly_one(model: _Model, a: str, b: str):
+    """The model, if exactly one of the fields a, b (the same quantity in two units) is set."""
+    if (getattr(model, a) is None) == (getattr(model, b) is None):
+        raise ValueError(f"give exactly one of {a} or {b}")
+    return model
+
+
 class SinusoidConfig(_Model):
     """One sinusoidal attitude-jitter term; give the amplitude in urad or in px (IFOVs)."""
 
@@ -75,9 +82,7 @@ class SinusoidConfig(_Model):
 
     @model_validator(mode="after")
     def _one_amplitude(self) -> SinusoidConfig:
-        if (self.amplitude_urad is None) == (self.amplitude_px is None):
-            raise ValueError("give exactly one of amplitude_urad or amplitude_px")
-        return self
+        return _exactly_one(self, "amplitude_urad", "amplitude_px")
 
 
 
@@ -94,8 +99,7 @@ class RandomJitterConfig(_Model):
 
     @model_validator(mode="after")
     def _check(self) -> RandomJitterConfig:
-        if (self.rms_urad is None) == (self.rms_px is None):
-            raise ValueError("give exactly one of rms_urad or rms_px")
+        _exactly_one(self, "rms_urad", "rms_px")
         if self.f_max_hz <= self.f_min_hz:
             raise ValueError("f_max_hz must exceed f_min_hz")
         return self
@@ -108,9 +112,7 @@ class HarmonicConfig(_Model):
 
     @model_validator(mode="after")
     def _one_amplitude(self) -> HarmonicConfig:
-        if (self.amplitude_urad is None) == (self.amplitude_px is None):
-            raise ValueError("give exactly one of amplitude_urad or amplitude_px")
-        return self
+        return _exactly_one(self, "amplitude_urad", "amplitude_px")
 
 
 class WheelConfig(_Model):

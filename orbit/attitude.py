@@ -24,16 +24,18 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
+from geographiclib.geodesic import Geodesic
 from scipy.spatial.transform import Rotation
 
 from orbit.frames import (
     OMEGA_EARTH_RAD_S,
+    ecef_to_geodetic,
     eci_to_ecef_matrix,
     gmst_rad,
     ray_ellipsoid_m,
 )
 from orbit.jitter import JitterSeries, JitterTerm, realize_jitter
-from orbit.kepler import EarthOrbit
+from orbit.kepler import EarthOrbit, Orbit
 
 _DT_S = 1e-3  # central-difference step for nominal rates (the pointing rotates < 2 mrad/s)
 
@@ -138,35 +140,34 @@ class Attitude:
         x = _unit(x)
         return np.stack([x, np.cross(z, x), z], axis=-1)
 
-    def jitter_rotvec_rad(self, t_s) -> np.ndarray:
-        """Jitter rotation vectors (..., 3) = (roll, pitch, yaw) in rad at times t_s."""
-        return self.jitter.rotvec_rad(t_s)
-
-    def eci_from_body(self, orbit: EarthOrbit, t_s) -> np.ndarray:
-        """True rotations (..., 3, 3): nominal pointing with jitter applied in the body frame."""
-        t = np.asarray(t_s, dtype=np.float64)
-        nominal = self.nominal_eci_from_body(orbit, t)
-        if len(self.jitter) == 0:
-            return nominal
+    def _jitter_matrix(self, t: np.ndarray) -> np.ndarray:
         rv = self.jitter.rotvec_rad(t)
-        jit = Rotation.from_rotvec(rv.reshape(-1, 3)).as_matrix().reshape(rv.shape[:-1] + (3, 3))
-        return nominal @ jit
+        return Rotation.from_rotvec(rv.reshape(-1, 3)).as_matrix().reshape(rv.shape[:-1] + (3, 3))
 
-    def eci_from_body_rate(self, orbit: EarthOrbit, t_s, nominal: bool = False) -> np.ndarray:
-        """Time derivative (..., 3, 3) of :meth:`eci_from_body` (or of the nominal), 1/s.
+    def eci_from_body(self, orbit: EarthOrbit, t_s, nominal: bool = False) -> np.ndarray:
+        """Rotations (..., 3, 3): nominal pointing with jitter applied in the body frame
+        (``nominal=True``: without the jitter)."""
+        t = np.asarray(t_s, dtype=np.float64)
+        n = self.nominal_eci_from_body(orbit, t)
+        if nominal or len(self.jitter) == 0:
+            return n
+        return n @ self._jitter_matrix(t)
+
+    def eci_from_body_and_rate(self, orbit: EarthOrbit, t_s,
+                               nominal: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`eci_from_body` (..., 3, 3) and its time derivative (..., 3, 3) in 1/s.
 
         The nominal part by a central difference (smooth: < 2 mrad/s), the jitter part
         analytically: d/dt (N J) = dN/dt J + N J [dphi/dt]x (exact to |phi| ~ 1e-5).
         """
         t = np.asarray(t_s, dtype=np.float64)
+        n = self.nominal_eci_from_body(orbit, t)
         nd = (self.nominal_eci_from_body(orbit, t + _DT_S)
               - self.nominal_eci_from_body(orbit, t - _DT_S)) / (2.0 * _DT_S)
         if nominal or len(self.jitter) == 0:
-            return nd
-        n = self.nominal_eci_from_body(orbit, t)
-        rv = self.jitter.rotvec_rad(t)
-        jit = Rotation.from_rotvec(rv.reshape(-1, 3)).as_matrix().reshape(rv.shape[:-1] + (3, 3))
-        return nd @ jit + n @ jit @ _skew(self.jitter.rate_rad_s(t))
+            return n, nd
+        jit = self._jitter_matrix(t)
+        return n @ jit, nd @ jit + n @ jit @ _skew(self.jitter.rate_rad_s(t))
 
     def off_nadir_deg(self, orbit: EarthOrbit, t_s) -> np.ndarray:
         """Angle (...) between the line of sight and the geocentric nadir, deg."""
@@ -190,11 +191,6 @@ def orbit_looking_at(lat_deg: float, lon_deg: float, altitude_m: float, inclinat
     ValueError
         If the latitude is unreachable or the look angles miss the Earth.
     """
-    from geographiclib.geodesic import Geodesic
-
-    from orbit.frames import ecef_to_geodetic
-    from orbit.kepler import Orbit
-
     sub_lat, sub_lon = lat_deg, lon_deg
     orbit = Orbit.over_point(sub_lat, sub_lon, altitude_m, inclination_deg, epoch_utc,
                              descending, j2)

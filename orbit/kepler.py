@@ -214,10 +214,6 @@ class Orbit(EarthOrbit):
         return self.semi_major_axis_m - WGS84_A_M
 
     @property
-    def radius_m(self) -> float:
-        return self.semi_major_axis_m
-
-    @property
     def mean_motion_rad_s(self) -> float:
         """Two-body mean motion sqrt(mu / a^3), rad/s."""
         return float(np.sqrt(GM_EARTH_M3_S2 / self.semi_major_axis_m**3))

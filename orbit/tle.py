@@ -56,17 +56,13 @@ class TleOrbit(EarthOrbit):
         if sat.error:
             raise ValueError(f"TLE rejected by sgp4: {_SGP4_ERRORS.get(sat.error, sat.error)}")
         object.__setattr__(self, "_sat", sat)
-        if self.epoch_utc is None:
-            days = sat.jdsatepoch - _UNIX_JD + sat.jdsatepochF
-            epoch = np.datetime64(0, "ns") + np.timedelta64(int(round(days * 86400e9)), "ns")
-        else:
-            epoch = np.datetime64(self.epoch_utc, "ns")
-        object.__setattr__(self, "epoch_utc", epoch)
+        epoch = self.tle_epoch_utc if self.epoch_utc is None else self.epoch_utc
+        object.__setattr__(self, "epoch_utc", np.datetime64(epoch, "ns"))
 
     @property
     def tle_epoch_utc(self) -> np.datetime64:
-        sat = self._sat
-        days = sat.jdsatepoch - _UNIX_JD + sat.jdsatepochF
+        """The TLE's own epoch (UTC)."""
+        days = self._sat.jdsatepoch - _UNIX_JD + self._sat.jdsatepochF
         return np.datetime64(0, "ns") + np.timedelta64(int(round(days * 86400e9)), "ns")
 
     @property

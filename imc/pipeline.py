@@ -31,14 +31,17 @@ from compensation.metrics import residual_metrics
 from correlator.core import CorrelatorOptions
 from correlator.tracker import BlockTracker, block_grid
 from imc.io import write_csv, write_json, write_npz
-from imc.scenario import Scenario, ScenarioError
+from imc.scenario import CloudsConfig, Scenario, ScenarioError
 from orbit.attitude import Attitude, orbit_looking_at
 from orbit.frames import LocalFrame
 from orbit.jitter import JitterTerm, RandomJitter, WheelJitter, realize_jitter
 from orbit.kepler import EarthOrbit, Orbit
+from orbit.sun import sun_elevation_azimuth_deg
 from orbit.tle import TleOrbit
+from scene.classes import CloudLayer, cloud_layer, scene_class
+from scene.geotiff import GeoTiffError, terrain_from_geotiff
 from scene.pinhole import ray_keyframes
-from scene.terrain import Terrain, procedural_terrain
+from scene.terrain import Terrain
 
 KEYFRAMES_PER_EXPOSURE = 5
 CHECKPOINT_EVERY = 10
@@ -55,6 +58,8 @@ class Models:
     line_rate_hz: float | None
     main_velocity_px_s: np.ndarray  # predicted (nominal) image velocity at the imager centre
     terrain: Terrain
+    clouds: CloudLayer | None
+    sun_deg: tuple[float, float]  # (elevation, azimuth from north to east)
     optics: Optics
     radiometry: Radiometry
     sensor: SensorModel
@@ -124,8 +129,57 @@ def build_jitter(sc: Scenario, ifov_rad: float):
     return realize_jitter(terms, sc.duration_s, np.random.default_rng([sc.seed, 3]))
 
 
+#: clouds whose layer would need more cells than this per side get coarser cells
+MAX_CLOUD_CELLS = 4096
+
+
+def build_scene(sc: Scenario) -> tuple[Terrain, CloudLayer | None, tuple[float, float],
+                                       tuple[float, float]]:
+    """Terrain, cloud layer, centre (lat, lon) deg and sun (elevation, azimuth) deg."""
+    s = sc.scene
+    centre = (s.center_lat_deg, s.center_lon_deg)
+    if s.kind == "geotiff":
+        g = s.geotiff
+        try:
+            terrain, file_centre = terrain_from_geotiff(g.ortho, g.dem, s.dem_spacing_m,
+                                                        g.albedo_scale)
+        except GeoTiffError as e:
+            raise ScenarioError(str(e)) from None
+        centre = file_centre or centre
+    if s.sun_elevation_deg is not None:
+        sun = (float(s.sun_elevation_deg), float(s.sun_azimuth_deg))
+    else:
+        el, az = sun_elevation_azimuth_deg(centre[0], centre[1], sc.epoch, 0.0)
+        if el < 5.0:
+            raise ScenarioError(
+                f"scene: the sun is {float(el):.1f} deg above the horizon at orbit.epoch_utc "
+                f"{sc.orbit.epoch_utc} at ({centre[0]}, {centre[1]}); choose a daytime epoch "
+                "or set scene.sun_elevation_deg and sun_azimuth_deg")
+        sun = (float(el), float(az))
+    if s.kind != "geotiff":
+        terrain = scene_class(s.kind, s.size_m, s.texel_m, s.dem_spacing_m,
+                              np.random.default_rng([sc.seed, 0]), s.relief_rms_m,
+                              sun_azimuth_deg=sun[1])
+    cfg = s.clouds
+    if cfg is None and s.kind == "mountain":
+        cfg = CloudsConfig()  # the paper's mountain class has snow and clouds
+    clouds = None
+    if cfg is not None and cfg.cover > 0.0:
+        base = float(np.max(terrain.dem_m)) + cfg.base_height_m
+        # wide enough for a 56 deg off-nadir view and a 34 deg sun through the layer
+        extent = max(terrain.size_m) + 3.0 * (base + cfg.thickness_m - float(terrain.dem_m.min()))
+        cell = max(cfg.cell_m, extent / MAX_CLOUD_CELLS)
+        clouds = cloud_layer(extent, cell, cfg.cover, base, np.random.default_rng([sc.seed, 4]),
+                             cfg.thickness_m, cfg.albedo)
+    return terrain, clouds, centre, sun
+
+
 def build_models(sc: Scenario) -> Models:
     """Build orbit, attitude, camera, terrain and loop models; validate the geometry."""
+    terrain, clouds, centre, sun = build_scene(sc)
+    if centre != (sc.scene.center_lat_deg, sc.scene.center_lon_deg):
+        sc = sc.model_copy(update={"scene": sc.scene.model_copy(
+            update={"center_lat_deg": centre[0], "center_lon_deg": centre[1]})})
     orbit = build_orbit(sc)
     frame = LocalFrame(sc.scene.center_lat_deg, sc.scene.center_lon_deg, 0.0)
     c, t = sc.camera, sc.camera.tracker
@@ -149,8 +203,6 @@ def build_models(sc: Scenario) -> Models:
         if up[2] <= 0 or np.degrees(np.arctan2(np.hypot(up[0], up[1]), up[2])) > 70.0:
             raise ScenarioError("attitude.mode: the scene is below 20 deg elevation from the "
                                 "satellite at t = 0; change orbit or orbit.epoch_utc")
-    terrain = procedural_terrain(sc.scene.size_m, sc.scene.texel_m, sc.scene.dem_spacing_m,
-                                 sc.scene.relief_rms_m, np.random.default_rng([sc.seed, 0]))
     mi = c.main_imager
     if mi.kind == "tdi":
         imager: MainImager = TdiImager(
@@ -181,6 +233,8 @@ def build_models(sc: Scenario) -> Models:
         line_rate_hz=line_rate,
         main_velocity_px_s=velocity,
         terrain=terrain,
+        clouds=clouds,
+        sun_deg=sun,
         optics=Optics(c.focal_length_m, o.aperture_m, o.wavelength_m, c.pixel_pitch_m,
                       o.blur_sigma_px, o.transmission, o.diffraction),
         radiometry=Radiometry(**c.radiometry.model_dump()),
@@ -345,8 +399,8 @@ def run_loop(m: Models, state: LoopState | None = None, checkpoint: Path | None 
     fp = m.camera.focal_plane
     b = sc.correlator.block_px
     if renderer is None:
-        renderer = Renderer(m.terrain, Sun(sc.scene.sun_elevation_deg, sc.scene.sun_azimuth_deg),
-                            fp.rows, fp.cols, spp=sc.scene.spp)
+        renderer = Renderer(m.terrain, Sun(*m.sun_deg), fp.rows, fp.cols, spp=sc.scene.spp,
+                            clouds=m.clouds)
     grid_centers = BlockTracker.centers_from(m.corners, b)
     tracker = None
     if st.done > 0 and not m.chain:
@@ -545,6 +599,11 @@ def geometry_summary(m: Models) -> dict:
         "jitter_rms_px": [float(v) for v in (jit.std(axis=0) / fp.ifov_rad)],
         "tracker_snr": m.sensor.snr(exposure_s=m.exposure_s)
         if m.scenario.camera.tracker.signal == "mean_level" else None,
+        "scene_kind": m.scenario.scene.kind,
+        "scene_center_lat_lon_deg": [m.scenario.scene.center_lat_deg,
+                                     m.scenario.scene.center_lon_deg],
+        "sun_elevation_azimuth_deg": list(m.sun_deg),
+        "cloud_cover": m.clouds.cover if m.clouds is not None else 0.0,
         "main_imager": m.imager.kind,
         "line_rate_hz": m.line_rate_hz,
     }
@@ -596,7 +655,8 @@ def run_scenario(sc: Scenario, out: Path, save_frames: bool = False, fresh: bool
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     ckpt = out / "checkpoint.npz"
-    state = None if fresh or not ckpt.exists() else LoopState.load(ckpt, sc.digest(), m)
+    state = (None if fresh or not ckpt.exists()
+             else LoopState.load(ckpt, m.scenario.digest(), m))
     resumed_from = state.done if state is not None else 0
     st = run_loop(m, state, ckpt, progress)
     truth = compute_truth(m, st)

@@ -180,21 +180,67 @@ class AttitudeConfig(_Model):
         return self
 
 
-class SceneConfig(_Model):
-    """Procedural terrain tile centred on (lat, lon), rendered by Mitsuba."""
+class CloudsConfig(_Model):
+    """A cloud layer above the terrain (its own surface: parallax and cloud shadows)."""
 
+    cover: float = Field(0.2, ge=0.0, lt=1.0, description="fraction of the sky covered, 0..1")
+    base_height_m: float = Field(1000.0, gt=0.0, le=15_000.0,
+                                 description="cloud base above the highest terrain point, m")
+    thickness_m: float = Field(100.0, ge=0.0, le=2000.0,
+                               description="height of the cloud tops above the base, m")
+    albedo: float = Field(0.8, gt=0.0, le=1.0, description="mean cloud-top reflectance")
+    cell_m: float = Field(2.0, gt=0.0, description="grid cell of the cloud surface, m")
+
+
+class GeoTiffConfig(_Model):
+    """User terrain: a north-up GeoTIFF orthophoto and an optional GeoTIFF DEM (same CRS)."""
+
+    ortho: Path = Field(description="orthophoto GeoTIFF (path relative to the scenario file)")
+    dem: Path | None = Field(None, description="DEM GeoTIFF in m covering the orthophoto "
+                             "(none: flat)")
+    albedo_scale: float | None = Field(None, gt=0.0, description="albedo per pixel value "
+                                       "(default: 1 / dtype max for integers, 1 for floats)")
+
+
+SCENE_KINDS = ("procedural", "urban", "rural", "mountain", "waves", "calm_water", "geotiff")
+
+
+class SceneConfig(_Model):
+    """The terrain tile centred on (lat, lon), rendered by Mitsuba."""
+
+    kind: Literal["procedural", "urban", "rural", "mountain", "waves", "calm_water",
+                  "geotiff"] = Field(
+        "procedural", description="procedural (generic rural/suburban tile), one of the seed "
+        "paper's classes (urban, rural, mountain with snow and clouds, waves, calm_water), "
+        "or geotiff (user data)")
     center_lat_deg: float = Field(35.0, ge=-89.0, le=89.0, description="scene centre lat, deg")
     center_lon_deg: float = Field(10.0, ge=-180.0, le=360.0, description="scene centre lon, deg")
-    size_m: float = Field(512.0, gt=0.0, description="tile side (square), m")
-    texel_m: float = Field(0.4, gt=0.0, description="albedo texel size, m")
+    size_m: float = Field(512.0, gt=0.0, description="tile side (square), m; geotiff: the "
+                          "image's extent")
+    texel_m: float = Field(0.4, gt=0.0, description="albedo texel size, m; geotiff: its pixel")
     dem_spacing_m: float = Field(4.0, gt=0.0, description="DEM grid spacing, m")
-    relief_rms_m: float = Field(15.0, ge=0.0, description="RMS terrain height, m")
-    sun_elevation_deg: float = Field(50.0, gt=0.0, le=90.0, description="sun elevation, deg")
-    sun_azimuth_deg: float = Field(140.0, description="sun azimuth from north to east, deg")
+    relief_rms_m: float | None = Field(None, ge=0.0, description="RMS terrain height, m "
+                                       "(default per kind: procedural 15, urban 2 plus "
+                                       "buildings, rural 8, mountain 4 % of size_m, water 0)")
+    sun_elevation_deg: float | None = Field(None, gt=0.0, le=90.0, description="sun elevation, "
+                                            "deg (none: from orbit.epoch_utc at the centre)")
+    sun_azimuth_deg: float | None = Field(None, description="sun azimuth from north to east, "
+                                          "deg (none: from orbit.epoch_utc at the centre)")
+    clouds: CloudsConfig | None = Field(None, description="cloud layer (mountain: cover 0.2 "
+                                        "by default; set cover 0 to remove)")
+    geotiff: GeoTiffConfig | None = Field(None, description="kind geotiff: the files")
     spp: int = Field(4, ge=1, le=4096, description="samples per pixel (also sample time)")
 
     @model_validator(mode="after")
     def _sizes(self) -> SceneConfig:
+        if (self.sun_elevation_deg is None) != (self.sun_azimuth_deg is None):
+            raise ValueError("give both sun_elevation_deg and sun_azimuth_deg, or neither "
+                             "(the sun then follows orbit.epoch_utc)")
+        if (self.kind == "geotiff") != (self.geotiff is not None):
+            raise ValueError("kind 'geotiff' needs the geotiff section (ortho, dem), and the "
+                             "geotiff section needs kind 'geotiff'")
+        if self.kind == "geotiff":
+            return self
         if self.size_m / self.texel_m > 16384:
             raise ValueError("size_m / texel_m exceeds 16384 texels; raise texel_m")
         if self.size_m / self.dem_spacing_m > 4096:
@@ -411,4 +457,11 @@ def load_scenario(path: str | Path) -> Scenario:
         raise ScenarioError(f"{p}: YAML syntax error{where}: {problem}") from None
     if data is None:
         raise ScenarioError(f"{p}: the file is empty")
-    return parse_scenario(data, str(p))
+    sc = parse_scenario(data, str(p))
+    g = sc.scene.geotiff
+    if g is not None:  # files next to the scenario, wherever it is run from
+        g = g.model_copy(update={
+            "ortho": g.ortho if g.ortho.is_absolute() else p.parent / g.ortho,
+            "dem": g.dem if g.dem is None or g.dem.is_absolute() else p.parent / g.dem})
+        sc = sc.model_copy(update={"scene": sc.scene.model_copy(update={"geotiff": g})})
+    return sc

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from scene.classes import CloudLayer
 from scene.pinhole import KEYFRAME_FLOATS
 from scene.terrain import Terrain
 from scene.variant import VariantChoice, choose_variant, prepare_environment
@@ -154,16 +155,20 @@ class Renderer:
     rows, cols : film size in pixels (the tracking sensor).
     spp : samples per pixel (stratified; also samples the exposure time).
     choice : Mitsuba variant; by default :func:`scene.variant.choose_variant`.
+    clouds : an optional cloud layer (its own mesh above the terrain: parallax and shadows).
     """
 
     def __init__(self, terrain: Terrain, sun: Sun, rows: int, cols: int, spp: int = 4,
-                 choice: VariantChoice | None = None):
+                 choice: VariantChoice | None = None, clouds: CloudLayer | None = None):
         t0 = time.perf_counter()
         self._mi, self._dr, self.choice = load_mitsuba(choice)
         mi = self._mi
         _register_pinhole(mi, self._dr)
         self.rows, self.cols, self.spp = rows, cols, spp
-        self.z_start_m = float(np.max(terrain.dem_m)) + 500.0
+        top = float(np.max(terrain.dem_m))
+        if clouds is not None:
+            top = max(top, clouds.top_m)
+        self.z_start_m = top + 500.0
         scene_dict = {
             "type": "scene",
             "integrator": {"type": "direct", "emitter_samples": 1, "bsdf_samples": 1},
@@ -192,6 +197,18 @@ class Renderer:
                 "sampling_weight": 0.0,
             },
         }
+        if clouds is not None and clouds.cover > 0.0:
+            verts, faces, uv = clouds.mesh()
+            if len(faces):
+                scene_dict["clouds"] = self._mesh("clouds", verts, faces, uv, {
+                    "type": "diffuse",
+                    "reflectance": {
+                        "type": "bitmap", "raw": True, "filter_type": "bilinear",
+                        "wrap_mode": "clamp",
+                        "bitmap": self._mi.Bitmap(np.ascontiguousarray(
+                            clouds.albedo_map(), dtype=np.float32)),
+                    },
+                })
         self._scene_dict = scene_dict
         self._scene = mi.load_dict(scene_dict)
         self._sensor = self._scene.sensors()[0]
@@ -215,8 +232,7 @@ class Renderer:
         c, d = idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
         # counter-clockwise seen from above (normals up): a(NW) c(SW) b(NE), b c d
         faces = np.concatenate([np.column_stack([a, c, b]), np.column_stack([b, c, d])])
-        props = mi.Properties()
-        props["bsdf"] = mi.load_dict({
+        return self._mesh("terrain", verts, faces, uv, {
             "type": "diffuse",
             "reflectance": {
                 "type": "bitmap",
@@ -226,12 +242,21 @@ class Renderer:
                 "wrap_mode": "clamp",
             },
         })
-        mesh = mi.Mesh("terrain", verts.shape[0], faces.shape[0], props=props,
-                       has_vertex_normals=False, has_vertex_texcoords=True)
+
+    def _mesh(self, name: str, verts: np.ndarray, faces: np.ndarray, uv: np.ndarray | None,
+              bsdf: dict):
+        """A Mitsuba mesh filled from numpy (ENU metres; faces counter-clockwise from above)."""
+        mi = self._mi
+        props = mi.Properties()
+        props["bsdf"] = mi.load_dict(bsdf)
+        mesh = mi.Mesh(name, verts.shape[0], faces.shape[0], props=props,
+                       has_vertex_normals=False, has_vertex_texcoords=uv is not None)
         params = mi.traverse(mesh)
-        for key, arr in (("vertex_positions", verts.astype(np.float32)),
-                         ("faces", faces.astype(np.uint32)),
-                         ("vertex_texcoords", uv.astype(np.float32))):
+        arrays = [("vertex_positions", verts.astype(np.float32)),
+                  ("faces", faces.astype(np.uint32))]
+        if uv is not None:
+            arrays.append(("vertex_texcoords", uv.astype(np.float32)))
+        for key, arr in arrays:
             params[key] = type(params[key])(arr.ravel())  # dynamic array of any variant
         params.update()
         return mesh

@@ -159,3 +159,56 @@ def test_scenario_reference_is_current():
     spec.loader.exec_module(gen)
     assert (ROOT / "docs" / "scenario.md").read_text() == gen.render(), (
         "docs/scenario.md is stale: run .venv/bin/python scripts/gen_scenario_doc.py")
+
+
+def test_scene_kinds_sun_and_clouds_from_the_scenario():
+    from imc.pipeline import build_scene
+
+    auto = parse_scenario(_quickstart_with(**{"scene.sun_elevation_deg": None,
+                                             "scene.sun_azimuth_deg": None}))
+    _, _, centre, sun = build_scene(auto)
+    from orbit.sun import sun_elevation_azimuth_deg
+
+    el, az = sun_elevation_azimuth_deg(35.0, 10.0, auto.epoch)
+    assert sun == pytest.approx((float(el), float(az))) and centre == (35.0, 10.0)
+    night = parse_scenario(_quickstart_with(**{"scene.sun_elevation_deg": None,
+                                              "scene.sun_azimuth_deg": None,
+                                              "orbit.epoch_utc": "2026-06-21T23:00:00"}))
+    with pytest.raises(ScenarioError, match="daytime epoch"):
+        build_scene(night)
+    with pytest.raises(ScenarioError, match="give both sun_elevation_deg and sun_azimuth_deg"):
+        parse_scenario(_quickstart_with(**{"scene.sun_azimuth_deg": None}))
+    mountain = parse_scenario(_quickstart_with(**{"scene.kind": "mountain",
+                                                 "scene.relief_rms_m": None}))
+    terrain, clouds, _, _ = build_scene(mountain)
+    assert clouds is not None and clouds.cover == pytest.approx(0.2, abs=0.03)
+    assert clouds.base_m == pytest.approx(float(terrain.dem_m.max()) + 1000.0)
+    clear = parse_scenario(_quickstart_with(**{"scene.kind": "mountain",
+                                              "scene.clouds": {"cover": 0.0}}))
+    assert build_scene(clear)[1] is None
+
+
+def test_geotiff_scene_paths_are_relative_to_the_scenario(tmp_path):
+    import numpy as np
+
+    from scene.geotiff import write_geotiff
+
+    (tmp_path / "data").mkdir()
+    img = (np.random.default_rng(0).random((1400, 1400)) * 200).astype(np.uint8)
+    write_geotiff(tmp_path / "data" / "ortho.tif", img, 500000.0, 4000000.0, 0.4, 0.4)
+    data = _quickstart_with(**{"scene.kind": "geotiff"})
+    data["scene"]["geotiff"] = {"ortho": "data/ortho.tif"}
+    p = tmp_path / "s.yaml"
+    p.write_text(yaml.safe_dump(data))
+    res = runner.invoke(app, ["validate", str(p)])
+    assert res.exit_code == 0, res.output
+    data["scene"]["geotiff"] = {"ortho": "data/missing.tif"}
+    p.write_text(yaml.safe_dump(data))
+    res = runner.invoke(app, ["validate", str(p)])
+    assert res.exit_code == 2
+    assert "scene.geotiff.ortho" in res.output and "file not found" in res.output
+    assert "Traceback" not in res.output
+    data["scene"].pop("geotiff")
+    p.write_text(yaml.safe_dump(data))
+    res = runner.invoke(app, ["validate", str(p)])
+    assert res.exit_code == 2 and "needs the geotiff section" in res.output

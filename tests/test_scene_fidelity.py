@@ -1,0 +1,163 @@
+"""Rendering fidelity: rendered motion equals the camera model's predicted image motion.
+
+Tolerances: Monte Carlo noise at spp 16 gives ~0.006 px 1-sigma per 112^2 block (measured
+over 24 blocks: RMS 0.005-0.006 px, bias < 0.004 px), so the mean of 4 blocks is held to
+0.01 px and each block to 0.025 px (4 sigma).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from camera.geometry import FocalPlane, Pose, project
+from camera.motion import CameraModel
+from correlator import measure_shift
+from orbit.attitude import Attitude, orbit_looking_at
+from orbit.frames import LocalFrame
+from scene.classes import scene_class
+from scene.pinhole import ray_keyframes
+from scene.terrain import Terrain
+
+EPOCH = np.datetime64("2026-06-21T10:30:00")
+N = 256
+BASE = "urban"  # texture of the mesa scene (aliasing-free enough at 64^2 blocks)
+
+
+def _camera(roll_deg: float, fp: FocalPlane, mode: str | None = None) -> CameraModel:
+    frame = LocalFrame(35.0, 10.0, 0.0)
+    orbit = orbit_looking_at(35.0, 10.0, 681e3, 98.1, EPOCH, roll_deg=roll_deg)
+    if mode == "target":
+        att = Attitude("target", target_ecef_m=tuple(frame.origin_ecef_m.tolist()))
+    else:
+        att = Attitude("off_nadir" if roll_deg else "nadir", roll_deg=roll_deg,
+                       yaw_steering=True)
+    return CameraModel(orbit, att, frame, fp)
+
+
+def _blocks(img: np.ndarray, corners, b: int) -> np.ndarray:
+    return np.stack([img[r:r + b, c:c + b] for r, c in corners])
+
+
+@pytest.fixture(scope="module")
+def urban_renderer():
+    from scene.kernel import Renderer, Sun
+
+    terrain = scene_class("urban", 512.0, 0.4, 2.0, np.random.default_rng(3))
+    return terrain, Renderer(terrain, Sun(50.0, 140.0), N, N, spp=16)
+
+
+@pytest.mark.parametrize("roll_deg", [0.0, 20.0])
+def test_commanded_subpixel_pose_change_is_measured_within_0p01_px(urban_renderer, roll_deg):
+    """0.3 px / -0.2 px attitude step, nadir and 20 deg off-nadir with yaw steering."""
+    terrain, r = urban_renderer
+    fp = FocalPlane(10.0, 12e-6, N, N)
+    cam = _camera(roll_deg, fp)
+    pose0 = cam.pose(np.array([0.0, 0.0]), nominal=True)
+    rot = Rotation.from_rotvec(np.array([-0.2, 0.3, 0.0]) * fp.ifov_rad).as_matrix()
+    pose1 = Pose(pose0.position_m, pose0.enu_from_cam @ rot)
+    img0 = r.render(ray_keyframes(pose0, fp, (0.0, 0.0), r.z_start_m), seed=1)
+    img1 = r.render(ray_keyframes(pose1, fp, (0.0, 0.0), r.z_start_m), seed=2)
+    b = 112
+    corners = [(8, 8), (8, 136), (136, 8), (136, 136)]
+    res = measure_shift(_blocks(img0, corners, b), _blocks(img1, corners, b))
+    centres = np.array(corners, float) + (b - 1) / 2.0
+    ground = cam.ground_points(centres, 0.0, terrain.height_at)
+    predicted = project(ground, pose1[0], fp) - project(ground, pose0[0], fp)
+    assert res.valid.all()
+    assert np.abs(predicted).min() > 0.15  # the command is really sub-pixel and 2-D
+    err = res.shift - predicted
+    assert np.abs(err.mean(axis=0)).max() < 0.01
+    assert np.abs(err).max() < 0.025
+
+
+def _mesa(height_m: float, centre_en_m, radius_m: float, rng) -> Terrain:
+    """Flat textured ground with one flat-topped hill (steep 15 m sides)."""
+    base = scene_class(BASE, 512.0, 0.4, 2.0, rng, relief_rms_m=0.0)
+    m = base.dem_m.shape[0]
+    east = -256.0 + np.arange(m) * 2.0
+    north = 256.0 - np.arange(m) * 2.0
+    ee, nn = np.meshgrid(east, north)
+    d = np.hypot(ee - centre_en_m[0], nn - centre_en_m[1])
+    dem = height_m * np.clip((radius_m + 15.0 - d) / 15.0, 0.0, 1.0)
+    return Terrain(base.albedo, base.texel_m, dem.astype(np.float32), 2.0)
+
+
+def test_relief_parallax_of_a_100m_hill_follows_h_v_over_H():
+    """Staring at the scene for 1.5 s, a block on a 100 m mesa moves against a flat block by
+    h v dt / (H GSD) (v: the satellite's velocity relative to the ground, H its height): the
+    exact model within 0.03 px, the first-order formula within 2 %."""
+    from scene.kernel import Renderer, Sun
+
+    fp = FocalPlane(10.0, 12e-6, N, N)
+    cam = _camera(0.0, fp, mode="target")
+    terrain = _mesa(100.0, (60.0, 0.0), 45.0, np.random.default_rng(8))
+    r = Renderer(terrain, Sun(75.0, 140.0), N, N, spp=16)
+    dt = 1.5
+    poses = [cam.pose(np.array([t, t]), nominal=True) for t in (0.0, dt)]
+    imgs = [r.render(ray_keyframes(p, fp, (0.0, 0.0), r.z_start_m), seed=s)
+            for p, s in zip(poses, (5, 6), strict=True)]
+    b = 64
+    # blocks on the mesa top (east of the centre) and on the flat ground (west)
+    gsd = float(np.linalg.norm(poses[0].position_m[0])) * fp.ifov_rad
+    seen = project(np.array([[60.0, 0.0, 100.0], [-60.0, 0.0, 0.0]]), poses[0][0], fp)
+    corners = [tuple(int(round(v)) - b // 2 for v in px) for px in seen]
+    res = measure_shift(_blocks(imgs[0], corners, b), _blocks(imgs[1], corners, b))
+    assert res.valid.all()
+    centres = np.array(corners, float) + (b - 1) / 2.0
+    ground = cam.ground_points(centres, 0.0, terrain.height_at)
+    assert ground[0, 2] == pytest.approx(100.0) and ground[1, 2] == pytest.approx(0.0)
+    model = cam.image_motion_px(ground, np.array([dt]), 0.0, nominal=True)[0]
+    measured_parallax = res.shift[0] - res.shift[1]
+    model_parallax = model[0] - model[1]
+    assert np.abs(measured_parallax - model_parallax).max() < 0.03
+    # v: the satellite's speed relative to the scene (at its altitude, not the ground speed)
+    _, vel, _ = cam.pose_and_rate(np.array(0.0), nominal=True)
+    v = float(np.hypot(vel[0], vel[1]))
+    h_sat = float(poses[0].position_m[0, 2])
+    formula_px = 100.0 * v * dt / (h_sat * gsd)
+    assert np.linalg.norm(model_parallax) == pytest.approx(formula_px, rel=0.02)
+    assert formula_px > 1.5  # a real, multi-pixel effect
+
+
+def test_in_render_motion_blur_equals_mean_of_subframes(urban_renderer):
+    """One render with the pose moving 3 px across the exposure (9 keyframes) equals the mean
+    of 16 static sub-frame renders (same total samples) within Monte Carlo noise."""
+    terrain, r = urban_renderer
+    fp = FocalPlane(10.0, 12e-6, N, N)
+    cam = _camera(0.0, fp)
+    pose0 = cam.pose(np.array(0.0), nominal=True)
+
+    def poses(t):  # the line of sight turns 3 IFOV (row) and 1.5 IFOV (col) over t = 0..1
+        t = np.atleast_1d(t)
+        rot = Rotation.from_rotvec(np.outer(t, [3.0, -1.5, 0.0]) * fp.ifov_rad).as_matrix()
+        return Pose(np.repeat(pose0.position_m[None], len(t), 0), pose0.enu_from_cam @ rot)
+
+    spp = r.spp
+    try:
+        r.spp = 64
+        kf = ray_keyframes(poses(np.linspace(0.0, 1.0, 9)), fp, (0.0, 0.0), r.z_start_m)
+        blur_a = r.render(kf, seed=11)
+        blur_b = r.render(kf, seed=12)
+        r.spp = 4
+        subs = []
+        for k, t in enumerate((np.arange(16) + 0.5) / 16):
+            p = poses(np.array([t, t]))
+            subs.append(r.render(ray_keyframes(p, fp, (0.0, 0.0), r.z_start_m), seed=100 + k))
+    finally:
+        r.spp = spp
+    mean_sub = np.mean(subs, axis=0)
+    inner = (slice(8, -8), slice(8, -8))
+    sigma_blur = np.std((blur_a - blur_b)[inner]) / np.sqrt(2.0)
+    diff = (blur_a - mean_sub)[inner]
+    # mean of 16 spp-4 frames has about the noise of one spp-64 frame
+    expected = np.sqrt(2.0) * sigma_blur
+    assert np.std(diff) < 1.3 * expected
+    assert abs(diff.mean()) < 0.002 * blur_a.mean() + 3 * expected / np.sqrt(diff.size)
+    # and the blurred content sits where the sub-frames put it
+    res = measure_shift(blur_a[64:192, 64:192], mean_sub[64:192, 64:192])
+    assert res.valid and np.abs(res.shift).max() < 0.01
+    # the blur is real: a static frame differs far beyond the noise
+    static = subs[8]
+    assert np.std((static - mean_sub)[inner]) > 5 * expected

@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.imcsim-installed
 
-.PHONY: setup demo test lint bench clean
+.PHONY: setup demo test lint bench bench-table2 clean
 
 setup: $(STAMP)
 	@sh scripts/ensure-llvm.sh
@@ -34,6 +34,10 @@ $(BENCH_STAMP): $(STAMP)
 bench: setup $(BENCH_STAMP)
 	$(BIN)/python benchmarks/bench_render.py
 	$(BIN)/imc bench correlator
+
+# the seed paper's Table 2 on rendered scenes (~15 min on 2 cores)
+bench-table2: setup
+	$(BIN)/python benchmarks/bench_table2.py
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache .ruff_cache *.egg-info

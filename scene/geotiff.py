@@ -35,6 +35,7 @@ class GeoRaster:
 
     ``x0, y0``: map coordinates of the outer upper-left corner of pixel (0, 0); ``dx, dy``:
     pixel size (> 0; rows run toward -y). ``geographic``: coordinates in degrees (lon, lat).
+    ``dtype``: the file's pixel type (before conversion to float64).
     """
 
     data: np.ndarray
@@ -45,6 +46,7 @@ class GeoRaster:
     geographic: bool
     crs: int | None
     path: str
+    dtype: str
 
     @property
     def extent(self) -> tuple[float, float, float, float]:
@@ -101,6 +103,7 @@ def read_geotiff(path: str | Path, what: str = "GeoTIFF") -> GeoRaster:
     if not (dx > 0 and dy > 0):
         raise GeoTiffError(f"{what} {p}: pixel scale ({dx}, {dy}) must be positive (north-up)")
     data = np.asarray(data)
+    file_dtype = str(data.dtype)  # before RGB averaging turns it into float
     if data.ndim == 3:
         bands_last = data.shape[-1] <= 4
         data = data.mean(axis=-1 if bands_last else 0)
@@ -120,7 +123,7 @@ def read_geotiff(path: str | Path, what: str = "GeoTIFF") -> GeoRaster:
     if getattr(pixel_is_point, "value", pixel_is_point) == 2:  # RasterPixelIsPoint
         x0, y0 = x0 - dx / 2.0, y0 + dy / 2.0
     geographic, crs = _geokeys(meta)
-    return GeoRaster(data, x0, y0, dx, dy, geographic, crs, str(p))
+    return GeoRaster(data, x0, y0, dx, dy, geographic, crs, str(p), file_dtype)
 
 
 def _holes(data: np.ndarray, row0: int = 0, col0: int = 0) -> str | None:
@@ -171,7 +174,7 @@ def terrain_from_geotiff(ortho_path: str | Path, dem_path: str | Path | None,
     r0, c0 = (h - nh) // 2, (w - nw) // 2
     img = ortho.data[r0:r0 + nh, c0:c0 + nw]
     if albedo_scale is None:
-        raw_dtype = np.dtype(_dtype_of(ortho_path))
+        raw_dtype = np.dtype(ortho.dtype)
         albedo_scale = 1.0 / np.iinfo(raw_dtype).max if raw_dtype.kind in "ui" else 1.0
     albedo = np.clip(img * albedo_scale, 0.0, 1.0).astype(np.float32)
     if albedo.max() <= 0.0:
@@ -210,13 +213,6 @@ def terrain_from_geotiff(ortho_path: str | Path, dem_path: str | Path | None,
     z = ndimage.map_coordinates(dem.data, [rr, cc], order=1, mode="nearest")
     return (Terrain(albedo, texel_m, z.astype(np.float32), spacing),
             (lat0, lon0) if ortho.geographic else None)
-
-
-def _dtype_of(path: str | Path) -> str:
-    import tifffile
-
-    with tifffile.TiffFile(path) as tif:
-        return str(tif.pages.first.dtype)
 
 
 def write_geotiff(path: str | Path, data: np.ndarray, x0: float, y0: float, dx: float,

@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.imcsim-installed
 
-.PHONY: setup demo test lint bench bench-table2 clean
+.PHONY: setup demo test lint bench bench-table2 bench-optical clean
 
 setup: $(STAMP)
 	@sh scripts/ensure-llvm.sh
@@ -38,6 +38,10 @@ bench: setup $(BENCH_STAMP)
 # the seed paper's Table 2 on rendered scenes (~15 min on 2 cores)
 bench-table2: setup
 	$(BIN)/python benchmarks/bench_table2.py
+
+# the optical correlator emulation: accuracy vs SNR and block size, cost of each effect
+bench-optical: setup
+	$(BIN)/python benchmarks/bench_optical.py
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache .ruff_cache *.egg-info

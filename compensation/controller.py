@@ -37,7 +37,11 @@ class FirstOrderLoop:
 
     def update(self, offsets: np.ndarray, k: int, estimate: np.ndarray, valid: bool) -> None:
         """Fill offsets[k + 1 + L] (and hold it to the end) from frame k's estimate."""
-        j = k + 1 + self.latency_frames
+        self.apply(offsets, k + 1, estimate, valid)
+
+    def apply(self, offsets: np.ndarray, j: int, estimate: np.ndarray, valid: bool) -> None:
+        """An estimate that arrives before frame j: acts from frame j + L (held to the end)."""
+        j = j + self.latency_frames
         if j >= len(offsets):
             return
         prev = offsets[j - 1]

@@ -48,9 +48,12 @@ import scipy.fft as sfft
 from threadpoolctl import ThreadpoolController
 
 from correlator import gradient, jtc, peaks, spectral
+from correlator.optical import JtocModel, OpticalJtc
 
-METHODS = ("jtc", "xcorr", "phase")
+METHODS = ("jtc", "xcorr", "phase", "optical")
 SUBPIXEL = ("fourier", "gradient", "parabolic", "gaussian", "com")
+#: peak fits an optical correlator can do on its output plane
+OPTICAL_SUBPIXEL = ("com", "parabolic", "gaussian")
 WEIGHTINGS = ("snr", "flat")
 #: common-content passes at most, and the change (px) below which a block stops repeating
 COMMON_PASSES = 4
@@ -79,8 +82,10 @@ class ShiftResult:
 class CorrelatorOptions:
     """Options shared by :func:`measure_shift` and :class:`Correlator`.
 
-    method : 'jtc' (default), 'xcorr' or 'phase': the surface of peak fits and joint planes.
-    subpixel : 'fourier' (default), 'gradient', 'parabolic', 'gaussian' or 'com'.
+    method : 'jtc' (default), 'xcorr' or 'phase': the surface of peak fits and joint planes;
+        'optical': the emulated optical correlator (:mod:`correlator.optical`).
+    subpixel : 'fourier' (default; 'com', the paper's centre of mass, for 'optical'),
+        'gradient', 'parabolic', 'gaussian' or 'com'.
     jtc_filter : 'subtract' (default), 'plain' (joint plane only) or 'fringe'.
     joint_plane : for 'jtc', build the joint input plane explicitly (slower, as the optics do).
     psr_threshold : minimum peak-to-sidelobe ratio for a valid detection.
@@ -92,10 +97,11 @@ class CorrelatorOptions:
         on smooth textures).
     iterations : Newton (fourier) or Lucas-Kanade (gradient) iterations.
     workers : threads over the block stack (-1: all cores).
+    optical : the hardware model of method 'optical' (default: :class:`JtocModel`()).
     """
 
     method: str = "jtc"
-    subpixel: str = "fourier"
+    subpixel: str | None = None
     jtc_filter: str = "subtract"
     joint_plane: bool = False
     psr_threshold: float = 7.0
@@ -105,8 +111,17 @@ class CorrelatorOptions:
     rewindow: bool = True
     iterations: int = 3
     workers: int = -1
+    optical: JtocModel | None = None
 
     def __post_init__(self) -> None:
+        if self.subpixel is None:
+            object.__setattr__(self, "subpixel", "com" if self.method == "optical" else "fourier")
+        if self.method == "optical":
+            if self.subpixel not in OPTICAL_SUBPIXEL:
+                raise ValueError(f"method 'optical' reads a correlation plane: subpixel must be "
+                                 f"one of {OPTICAL_SUBPIXEL}, got {self.subpixel!r}")
+            if self.optical is None:
+                object.__setattr__(self, "optical", JtocModel())
         for name, allowed in (("method", METHODS), ("subpixel", SUBPIXEL),
                               ("jtc_filter", jtc.JTC_FILTERS), ("weighting", WEIGHTINGS)):
             if getattr(self, name) not in allowed:
@@ -216,6 +231,9 @@ class Correlator:
     ----------
     ref : (H, W) or (N, H, W) reference blocks, any real dtype.
     options : :class:`CorrelatorOptions`, or keyword arguments for it.
+    rng : noise of the emulated optical correlator's sensors (method 'optical' only); default
+        ``np.random.default_rng(0)``. Each ``measure`` draws one child seed per block from it, so
+        results do not depend on how the stack is split over threads.
 
     Examples
     --------
@@ -227,7 +245,8 @@ class Correlator:
     (True, True)
     """
 
-    def __init__(self, ref: np.ndarray, options: CorrelatorOptions | None = None, **kwargs):
+    def __init__(self, ref: np.ndarray, options: CorrelatorOptions | None = None,
+                 rng: np.random.Generator | None = None, **kwargs):
         self.options = options or CorrelatorOptions(**kwargs)
         self._single = np.ndim(ref) == 2
         ref_arr = _as_stack(ref, "ref")
@@ -247,6 +266,10 @@ class Correlator:
         self._ref_wconj = (self._ref_wts * self._ref_conj).astype(np.complex64)
         self._ref_m = spectral.gradient_power(self._ref_wts, self._ref_pow, self._lay.full)
         self._e_cur = float((self._lay.win_cur**2).sum())
+        self._optical = None
+        if self.options.method == "optical":
+            self._optical = OpticalJtc(self.options.optical, h, w, self.max_shift_px)
+            self._rng = rng if rng is not None else np.random.default_rng(0)
         nw = self.options.workers
         self._threads = (os.cpu_count() or 1) if nw == -1 else max(1, int(nw))
 
@@ -255,17 +278,31 @@ class Correlator:
         return self._ref0.shape[0]
 
     # ------------------------------------------------------------------------- public
-    def measure(self, cur: np.ndarray) -> ShiftResult:
-        """Shifts of ``cur`` blocks (same shape as ref) relative to the reference blocks."""
+    def measure(self, cur: np.ndarray, rng: np.random.Generator | None = None,
+                index: np.ndarray | None = None) -> ShiftResult:
+        """Shifts of ``cur`` blocks (same shape as ref) relative to the reference blocks.
+
+        ``rng``: the optical emulation's noise for this call (default: the instance's).
+        ``index``: measure only these reference blocks (``cur`` then holds just them).
+        """
         cur_arr = _as_stack(cur, "cur")
-        n = self.n_blocks
+        idx = np.arange(self.n_blocks) if index is None else np.asarray(index, dtype=int)
+        n = len(idx)
         if cur_arr.shape[1:] != self._ref0.shape[1:] or cur_arr.shape[0] not in (1, n):
             raise ValueError(f"cur shape {np.shape(cur)} does not match the reference blocks "
-                             f"{self._ref0.shape}")
+                             f"{(n, *self._ref0.shape[1:])}")
         if cur_arr.shape[0] != n:
-            cur_arr = np.broadcast_to(cur_arr, self._ref0.shape)
-        chunks = self._chunks(n)
-        if len(chunks) == 1:
+            cur_arr = np.broadcast_to(cur_arr, (n, *self._ref0.shape[1:]))
+        if n == 0:
+            z = np.zeros((0, 2))
+            return ShiftResult(z, np.zeros(0, bool), np.zeros(0), z.copy())
+        if self._optical is not None:  # one pass: the emulation threads its FFTs itself
+            seeds = (rng if rng is not None else self._rng).integers(0, 2**63 - 1, size=n)
+            parts = [self._measure_optical(cur_arr, seeds, idx)]
+        elif index is not None:
+            full = self.measure(_scatter(cur_arr, idx, self._ref0.shape))
+            return ShiftResult(full.shift[idx], full.valid[idx], full.peak[idx], full.crlb[idx])
+        elif len(chunks := self._chunks(n)) == 1:
             parts = [self._measure(cur_arr, slice(0, n))]
         else:
             # one BLAS thread per worker: the per-block matrix products are small, and nested
@@ -341,6 +378,26 @@ class Correlator:
             & np.all(crlb <= o.max_crlb_px, axis=1)
         )
         shift = np.where(np.isfinite(shift), shift, 0.0)
+        return shift, valid, np.nan_to_num(psr), crlb
+
+    def _measure_optical(self, cur_arr: np.ndarray, seeds: np.ndarray, idx: np.ndarray):
+        """The emulated JTOC: shift and PSR from its output plane; crlb is the pair's bound
+        (what an ideal estimator would reach), for comparison and the texture check."""
+        o, lay = self.options, self._lay
+        h, w = self.shape
+        cur0, cur_ok = _sanitise(cur_arr)
+        cur_w = cur0 * lay.win_cur
+        amplitude = o.optical.on("slm_amplitude")
+        rngs = [np.random.default_rng(int(s)) for s in seeds]
+        shift, psr = self._optical.measure(self._ref0[idx] if amplitude else self._ref_w[idx],
+                                           cur0 if amplitude else cur_w, rngs, o.subpixel)
+        cspec = sfft.rfft2(cur_w, workers=self._threads)
+        noise = 0.5 * (self._ref_noise[idx] + _noise_var(cspec, self._e_cur, lay))
+        _, _, hess = spectral.newton_terms(self._ref_wconj[idx] * cspec, shift, lay.full)
+        crlb = spectral.sandwich_crlb(self._ref_m[idx], noise, hess, h * w)
+        valid = (self._ref_ok[idx] & cur_ok & (psr >= o.psr_threshold)
+                 & np.all(np.abs(shift) <= self.max_shift_px + 0.5, axis=1)
+                 & np.all(crlb <= o.max_crlb_px, axis=1))
         return shift, valid, np.nan_to_num(psr), crlb
 
     def _argmax(self, surf: np.ndarray, q: int) -> tuple[np.ndarray, np.ndarray]:
@@ -422,19 +479,29 @@ def _blas() -> ThreadpoolController:
     return ThreadpoolController()
 
 
+def _scatter(part: np.ndarray, idx: np.ndarray, shape: tuple) -> np.ndarray:
+    """A full stack of ``shape`` with ``part`` at ``idx`` (other blocks: copies of part[0])."""
+    out = np.empty(shape, part.dtype)
+    out[:] = part[:1]
+    out[idx] = part
+    return out
+
+
 def _lag(i: np.ndarray, size: int) -> np.ndarray:
     """Signed lag of index i on a wrapped axis of length size."""
     i = np.asarray(i)
     return np.where(i < (size + 1) // 2, i, i - size)
 
 
-def measure_shift(ref: np.ndarray, cur: np.ndarray, method: str = "jtc", **options) -> ShiftResult:
+def measure_shift(ref: np.ndarray, cur: np.ndarray, method: str = "jtc",
+                  rng: np.random.Generator | None = None, **options) -> ShiftResult:
     """Measure the displacement of ``cur`` relative to ``ref``.
 
     Parameters
     ----------
     ref, cur : (H, W) or stacked (N, H, W) real arrays of equal shape (blocks >= 16x16).
-    method : 'jtc', 'xcorr' or 'phase'.
+    method : 'jtc', 'xcorr', 'phase' or 'optical' (the emulated optical correlator).
+    rng : sensor noise of method 'optical' (default ``np.random.default_rng(0)``).
     **options : see :class:`CorrelatorOptions` (subpixel, psr_threshold, max_shift_px, ...).
 
     Returns
@@ -455,4 +522,4 @@ def measure_shift(ref: np.ndarray, cur: np.ndarray, method: str = "jtc", **optio
     if np.shape(ref) != np.shape(cur):
         raise ValueError(f"ref and cur must have the same shape, got {np.shape(ref)} and "
                          f"{np.shape(cur)}")
-    return Correlator(ref, CorrelatorOptions(method=method, **options)).measure(cur)
+    return Correlator(ref, CorrelatorOptions(method=method, **options), rng).measure(cur)

@@ -56,23 +56,29 @@ class BlockTracker:
         """Centres (n, 2) of blocks with top-left corners (n, 2)."""
         return np.asarray(corners) + (block_px - 1) / 2.0
 
-    def update(self, frame: np.ndarray, predicted_px: np.ndarray | None = None) -> ShiftResult:
+    def update(self, frame: np.ndarray, predicted_px: np.ndarray | None = None,
+               rng: np.random.Generator | None = None,
+               index: np.ndarray | None = None) -> ShiftResult:
         """Shifts of the reference blocks' content in ``frame``.
 
         ``predicted_px`` (n, 2), optional: the motion expected from orbit and attitude. Each
         block is then cut from ``frame`` at its corner moved by the rounded prediction, and that
         whole-pixel offset is added back, so the correlator only sees the unpredicted part. A
-        block moved off the sensor comes back invalid (shift NaN).
+        block moved off the sensor comes back invalid (shift NaN). ``rng``: noise of an
+        emulated optical correlator; ``index``: measure only these blocks (results for them).
         """
         frame = np.asarray(frame)
+        sel = np.arange(len(self.corners)) if index is None else np.asarray(index, dtype=int)
+        base = self.corners[sel]
         if predicted_px is None:
-            return self.correlator.measure(extract_blocks(frame, self.corners, self.block_px))
-        step = np.rint(np.asarray(predicted_px, dtype=np.float64)).astype(int)
-        corners = self.corners + step
+            return self.correlator.measure(extract_blocks(frame, base, self.block_px), rng,
+                                           index)
+        step = np.rint(np.asarray(predicted_px, dtype=np.float64)[sel]).astype(int)
+        corners = base + step
         h, w = frame.shape
         inside = np.all((corners >= 0) & (corners + self.block_px <= [h, w]), axis=1)
-        safe = np.where(inside[:, None], corners, self.corners)
-        res = self.correlator.measure(extract_blocks(frame, safe, self.block_px))
+        safe = np.where(inside[:, None], corners, base)
+        res = self.correlator.measure(extract_blocks(frame, safe, self.block_px), rng, index)
         shift = np.where(inside[:, None], res.shift + step, np.nan)
         return ShiftResult(shift, res.valid & inside, np.where(inside, res.peak, 0.0),
                            np.where(inside[:, None], res.crlb, np.inf))

@@ -112,6 +112,15 @@ def run(
               f"{t['rms_error_px'][0]:.4f} / {t['rms_error_px'][1]:.4f} px "
               f"(CRLB {t['median_crlb_px'][0]:.4f} / {t['median_crlb_px'][1]:.4f} px)")
     out.print(f"residual RMS reduced {metrics['rms_reduction']:.1f}x by the loop")
+    if "correlator_device" in metrics:
+        d = metrics["correlator_device"]
+        out.print(f"correlator device: {d['correlations_per_s']:g} correlations/s, latency "
+                  f"{d['latency_s'] * 1e3:.0f} ms; {d['pairs_processed']} pairs correlated, "
+                  f"{d['pairs_dropped']} dropped; {d['frames_measured']} frames measured")
+    if "link" in metrics:
+        lk = metrics["link"]
+        out.print(f"serial link: {lk['records']} records, {lk['lost']} lost, "
+                  f"{lk['crc_errors']} CRC errors, {lk['reconnects']} reconnects")
     resumed = run_info["resumed_from_frame"]
     out.print(f"wall time {run_info['wall_s']:.1f} s (rendering {run_info['render_s']:.1f} s)"
               + (f", resumed at frame {resumed}" if resumed else ""))
@@ -126,6 +135,99 @@ def show_metrics(out_dir: Path = typer.Argument(..., help="a run's output folder
     except (OSError, json.JSONDecodeError) as e:
         _fail(f"{out_dir}/metrics.json: cannot read ({e})")
     out.print(_table(metrics))
+
+
+@app.command(name="device-emulator")
+def device_emulator(
+    scenario: Path = typer.Argument(..., help="scenario YAML (its correlator section is used)"),
+    link: Path = typer.Option(Path("/tmp/imc-jtoc"), "--link",
+                              help="symlink to the pseudo-terminal the device serves"),
+    speed: float = typer.Option(1.0, min=0.0, help="device time / wall time (0: no waiting)"),
+    linger_s: float = typer.Option(2.0, min=0.0, help="heartbeats after the last record, s"),
+    corrupt: float = typer.Option(0.0, min=0.0, max=0.99, help="chance of a flipped bit"),
+    drop: float = typer.Option(0.0, min=0.0, max=0.99, help="chance a record is lost"),
+) -> None:
+    """Serve a scenario's image-motion records like the hardware correlator, on a pty.
+
+    The scenario runs open loop through the optical emulation and the device's pipeline
+    timing; each record is written when the device would deliver it. Read it with
+    `imc device-read LINK` or correlator.driver.Driver.
+    """
+    import dataclasses
+    import time
+
+    import numpy as np
+
+    from correlator.driver import PtyDevice, motion_records
+    from imc.pipeline import build_models, run_loop
+
+    try:
+        sc = load_scenario(scenario)
+        c = sc.correlator.model_copy(update={
+            "method": "optical", "subpixel": (sc.correlator.subpixel
+                                              if sc.correlator.method == "optical" else None),
+            "timing": sc.correlator.timing.model_copy(update={"enabled": True}),
+            "link": sc.correlator.link.model_copy(update={"kind": "direct"})})
+        sc = sc.model_copy(update={"correlator": c, "compensation": sc.compensation.model_copy(
+            update={"enabled": False})})
+        m = build_models(sc)
+    except ScenarioError as e:
+        _fail(str(e))
+    with PtyDevice(link, np.random.default_rng([sc.seed, 5]), corrupt_probability=corrupt,
+                   drop_probability=drop) as dev:
+        out.print(f"device on {link} -> {link.resolve()} ({m.timing.correlations_per_s:g} "
+                  f"correlations/s); rendering and correlating {sc.n_frames} frames ...")
+        st = run_loop(m)
+        sched = m.schedule
+        kk, bb = np.nonzero(sched.done)
+        order = np.argsort(sched.deliver_s[kk, bb], kind="stable")
+        t0 = time.monotonic()
+        for i in order:
+            k, b = int(kk[i]), int(bb[i])
+            t_dev = float(sched.deliver_s[k, b])
+            if speed > 0:
+                time.sleep(max(0.0, t0 + t_dev / speed - time.monotonic()))
+            rec = motion_records(k, np.array([1e6 * t_dev]), st.shifts[k, b][None],
+                                 st.valid[k, b][None], st.peaks[k, b][None])[0]
+            dev.send([dataclasses.replace(rec, block=b)])
+        end = time.monotonic() + linger_s
+        while time.monotonic() < end:
+            dev.heartbeat()
+            time.sleep(0.25)
+        dev.heartbeat()
+        out.print(f"sent {dev.seq} records ({len(order)} motion) on {link}")
+
+
+@app.command(name="device-read")
+def device_read(
+    port: str = typer.Argument(..., help="serial port, pty link or pyserial URL"),
+    seconds: float = typer.Option(5.0, min=0.0, help="how long to listen"),
+    baudrate: int = typer.Option(115200, help="line speed"),
+) -> None:
+    """Print the image-motion records a correlator sends, then the link's counters."""
+    import time
+
+    from correlator.driver import Driver, DriverError
+
+    try:
+        drv = Driver(port, baudrate=baudrate)
+    except Exception as e:  # pyserial raises several types for a missing port
+        _fail(f"{port}: cannot open ({e}); start `imc device-emulator` or check the cable")
+    end = time.monotonic() + seconds
+    try:
+        with drv:
+            while time.monotonic() < end:
+                for r in drv.read(min(0.2, max(0.0, end - time.monotonic()))):
+                    out.print(f"seq {r.seq:6d}  t {r.timestamp_us / 1e6:9.4f} s  frame "
+                              f"{r.frame:5d}  block {r.block:3d}  shift {r.shift_px[0]:+8.4f} "
+                              f"{r.shift_px[1]:+8.4f} px  psr {r.peak:6.1f}  "
+                              f"{'valid' if r.valid else 'INVALID'}", highlight=False)
+    except DriverError as e:
+        _fail(str(e))
+    s = drv.stats
+    out.print(f"{s.records} records, {len(s.lost)} lost, {s.crc_errors} CRC errors, "
+              f"{s.garbage_bytes} garbage bytes, {s.duplicates} duplicates, "
+              f"{s.reconnects} reconnects")
 
 
 bench_app = typer.Typer(add_completion=False, no_args_is_help=True,

@@ -29,6 +29,9 @@ from camera.sensor import Radiometry, SensorModel
 from compensation.controller import FirstOrderLoop
 from compensation.metrics import residual_metrics
 from correlator.core import CorrelatorOptions
+from correlator.driver import LoopbackLink
+from correlator.optical import OpticalJtc
+from correlator.timing import PipelineTiming, Schedule
 from correlator.tracker import BlockTracker, block_grid
 from imc.io import write_csv, write_json, write_npz
 from imc.scenario import CloudsConfig, Scenario, ScenarioError
@@ -69,6 +72,8 @@ class Models:
     frame_t_s: np.ndarray
     exposure_s: float
     chain: bool
+    timing: PipelineTiming | None = None  # the correlator device's pipeline, if modelled
+    schedule: Schedule | None = None  # which (frame, block) pairs it correlates, and when
 
     @property
     def frame_mid_s(self) -> np.ndarray:
@@ -242,19 +247,35 @@ def build_models(sc: Scenario) -> Models:
                            t.gain_e_per_dn, t.full_well_e, t.read_noise_e,
                            t.dark_current_e_per_s),
         controller=FirstOrderLoop(sc.compensation.gain, sc.compensation.latency_frames),
-        correlator=CorrelatorOptions(method=sc.correlator.method,
-                                     subpixel=sc.correlator.subpixel,
-                                     psr_threshold=sc.correlator.psr_threshold,
-                                     max_crlb_px=sc.correlator.max_crlb_px,
-                                     rewindow=sc.correlator.rewindow),
+        correlator=_correlator_options(sc),
         corners=corners,
         frame_t_s=frame_t,
         exposure_s=sc.exposure_s,
         chain=False,
+        timing=sc.correlator.pipeline_timing(),
     )
+    if models.timing is not None:  # a frame is ready for the device when it is read out
+        models = dataclasses.replace(models, schedule=models.timing.schedule(
+            frame_t + sc.exposure_s, len(corners)))
     models = dataclasses.replace(models, chain=_needs_chain(models))
     _check_coverage(models)
     return models
+
+
+def _correlator_options(sc: Scenario) -> CorrelatorOptions:
+    """The correlator's options; an optical model that cannot hold the blocks is a
+    ScenarioError naming the field."""
+    c = sc.correlator
+    try:
+        opts = CorrelatorOptions(
+            method=c.method, subpixel=c.subpixel, psr_threshold=c.psr_threshold,
+            max_crlb_px=c.max_crlb_px, rewindow=c.rewindow,
+            optical=c.jtoc_model() if c.method == "optical" else None)
+        if c.method == "optical":
+            OpticalJtc(opts.optical, c.block_px, c.block_px, c.block_px // 4)
+    except ValueError as e:
+        raise ScenarioError(f"correlator: {e}") from None
+    return opts
 
 
 def predicted_px(m: Models, centers_px: np.ndarray, k_ref: int, k: int,
@@ -329,6 +350,7 @@ class LoopState:
     gain: float  # electrons per radiance unit (mean_level signal)
     done: int
     render_s: float
+    link_stats: dict | None = None  # the serial link's counters (link.kind 'emulator')
 
     _FIELDS = ("frames", "offsets", "ref_index", "ref_corners", "shifts", "valid", "peaks",
                "crlb", "estimate")
@@ -402,54 +424,84 @@ def run_loop(m: Models, state: LoopState | None = None, checkpoint: Path | None 
         renderer = Renderer(m.terrain, Sun(*m.sun_deg), fp.rows, fp.cols, spp=sc.scene.spp,
                             clouds=m.clouds)
     grid_centers = BlockTracker.centers_from(m.corners, b)
+    sched = m.schedule
+    arrive_s = sched.frame_deliver_s() if sched is not None else None
+    n = len(m.frame_t_s)
+    processed = sched.done if sched is not None else np.ones((n, len(m.corners)), bool)
+    measured = [k for k in range(1, st.done) if processed[k].any()]
+    last_measured = measured[-1] if measured else 0
     tracker = None
     if st.done > 0 and not m.chain:
         tracker = BlockTracker(st.frames[0], m.corners, b, m.correlator)
-    n = len(m.frame_t_s)
-    for k in range(st.done, n):
-        t0 = time.perf_counter()
-        times = m.frame_t_s[k] + np.linspace(0.0, m.exposure_s, KEYFRAMES_PER_EXPOSURE)
-        kf = ray_keyframes(m.camera.pose(times), fp, st.offsets[k], renderer.z_start_m)
-        rng, render_seed = frame_seeds(sc.seed, k)
-        radiance = renderer.render(kf, render_seed)
-        st.render_s += time.perf_counter() - t0
-        if k == 0:
-            st.gain = m.sensor.gain_for(m.optics.apply(radiance))
-        st.frames[k] = expose_frame(m, radiance, st.gain, rng)
-        if k == 0:
-            st.ref_corners[0] = m.corners
-            st.valid[0] = True
-            st.peaks[0] = np.inf
-            if not m.chain:
-                tracker = BlockTracker(st.frames[0], m.corners, b, m.correlator)
-        else:
-            if m.chain:
-                k_ref = k - 1
-                half = np.rint(predicted_px(m, grid_centers, k_ref, k, st.offsets) / 2.0)
-                lim = np.array([fp.rows - b, fp.cols - b])
-                ref_corners = np.clip(m.corners - half.astype(int), 0, lim)
-                tracker = BlockTracker(st.frames[k_ref], ref_corners, b, m.correlator)
+    lk = sc.correlator.link
+    link = (LoopbackLink(np.random.default_rng([sc.seed, 4]), lk.corrupt_probability,
+                         lk.drop_probability) if lk.kind == "emulator" else None)
+    try:
+        for k in range(st.done, n):
+            t0 = time.perf_counter()
+            times = m.frame_t_s[k] + np.linspace(0.0, m.exposure_s, KEYFRAMES_PER_EXPOSURE)
+            kf = ray_keyframes(m.camera.pose(times), fp, st.offsets[k], renderer.z_start_m)
+            rng, render_seed = frame_seeds(sc.seed, k)
+            radiance = renderer.render(kf, render_seed)
+            st.render_s += time.perf_counter() - t0
+            if k == 0:
+                st.gain = m.sensor.gain_for(m.optics.apply(radiance))
+            st.frames[k] = expose_frame(m, radiance, st.gain, rng)
+            if k == 0:
+                st.ref_corners[0] = m.corners
+                st.valid[0] = True
+                st.peaks[0] = np.inf
+                if not m.chain:
+                    tracker = BlockTracker(st.frames[0], m.corners, b, m.correlator)
+            elif not processed[k].any():  # the device was busy: no measurement of frame k
+                st.ref_index[k], st.ref_corners[k] = st.ref_index[k - 1], st.ref_corners[k - 1]
+                st.shifts[k], st.valid[k], st.peaks[k], st.crlb[k] = np.nan, False, 0.0, np.inf
+                st.estimate[k] = st.estimate[k - 1]
             else:
-                k_ref, ref_corners = 0, m.corners
-            pred = predicted_px(m, BlockTracker.centers_from(ref_corners, b), k_ref, k,
-                                st.offsets)
-            res = tracker.update(st.frames[k], pred)
-            st.ref_index[k], st.ref_corners[k] = k_ref, ref_corners
-            st.shifts[k], st.valid[k], st.peaks[k], st.crlb[k] = (
-                res.shift, res.valid, res.peak, res.crlb)
-            ok = st.valid[k]
-            d = st.shifts[k][ok].mean(axis=0) if ok.any() else pred.mean(axis=0)
-            # content motion since the reference = image motion - stage change
-            st.estimate[k] = st.estimate[k_ref] + d + st.offsets[k] - st.offsets[k_ref]
-        if sc.compensation.enabled and st.valid[k].any():
-            target = st.estimate[k] - (charge_motion_px(m, m.frame_mid_s[k])
-                                       - charge_motion_px(m, m.frame_mid_s[0]))
-            m.controller.update(st.offsets, k, target, True)
-        st.done = k + 1
-        if checkpoint is not None and (st.done % CHECKPOINT_EVERY == 0 or st.done == n):
-            st.save(checkpoint, sc.digest())
-        if progress is not None:
-            progress(st.done, n)
+                if m.chain:
+                    k_ref = last_measured
+                    half = np.rint(predicted_px(m, grid_centers, k_ref, k, st.offsets) / 2.0)
+                    lim = np.array([fp.rows - b, fp.cols - b])
+                    ref_corners = np.clip(m.corners - half.astype(int), 0, lim)
+                    tracker = BlockTracker(st.frames[k_ref], ref_corners, b, m.correlator)
+                else:
+                    k_ref, ref_corners = 0, m.corners
+                pred = predicted_px(m, BlockTracker.centers_from(ref_corners, b), k_ref, k,
+                                    st.offsets)
+                todo = np.flatnonzero(processed[k])
+                res = tracker.update(st.frames[k], pred, np.random.default_rng([sc.seed, 3, k]),
+                                     todo if len(todo) < len(m.corners) else None)
+                shift, valid, peak = res.shift, res.valid, res.peak
+                if link is not None:
+                    t_us = np.rint(1e6 * (sched.deliver_s[k, todo] if sched is not None
+                                          else np.full(len(todo), m.frame_t_s[k]))).astype(int)
+                    shift, valid, peak, _ = link.roundtrip(k, t_us, todo, shift, valid, peak)
+                st.ref_index[k], st.ref_corners[k] = k_ref, ref_corners
+                st.shifts[k], st.valid[k], st.peaks[k], st.crlb[k] = np.nan, False, 0.0, np.inf
+                st.shifts[k, todo], st.valid[k, todo] = shift, valid
+                st.peaks[k, todo], st.crlb[k, todo] = peak, res.crlb
+                ok = st.valid[k]
+                d = st.shifts[k][ok].mean(axis=0) if ok.any() else pred.mean(axis=0)
+                # content motion since the reference = image motion - stage change
+                st.estimate[k] = st.estimate[k_ref] + d + st.offsets[k] - st.offsets[k_ref]
+                last_measured = k
+            if sc.compensation.enabled and st.valid[k].any():
+                target = st.estimate[k] - (charge_motion_px(m, m.frame_mid_s[k])
+                                           - charge_motion_px(m, m.frame_mid_s[0]))
+                if arrive_s is None or k == 0:
+                    m.controller.update(st.offsets, k, target, True)
+                else:  # acts from the first frame exposed after the device delivers
+                    j = int(np.searchsorted(m.frame_t_s, arrive_s[k] - 1e-9))
+                    m.controller.apply(st.offsets, max(j, k + 1), target, True)
+            st.done = k + 1
+            if checkpoint is not None and (st.done % CHECKPOINT_EVERY == 0 or st.done == n):
+                st.save(checkpoint, sc.digest())
+            if progress is not None:
+                progress(st.done, n)
+    finally:
+        if link is not None:
+            st.link_stats = link.stats()
+            link.close()
     return st
 
 
@@ -559,7 +611,7 @@ def summarize(m: Models, st: LoopState, truth: Truth) -> dict:
     nan2 = np.array([np.nan] * 2)
     rms_err = np.sqrt(np.mean(err[ok] ** 2, axis=0)) if ok.any() else nan2
     crlb = np.median(st.crlb[1:][ok], axis=0) if ok.any() else nan2
-    return {
+    out = {
         "scenario": sc.name,
         "frames": int(len(m.frame_t_s)),
         "blocks": int(len(m.corners)),
@@ -576,6 +628,20 @@ def summarize(m: Models, st: LoopState, truth: Truth) -> dict:
         },
         "geometry": geometry_summary(m),
     }
+    if m.schedule is not None:
+        done = m.schedule.done[1:]
+        lat = (m.schedule.deliver_s - (m.frame_t_s + m.exposure_s)[:, None])[1:][done]
+        out["correlator_device"] = {
+            "correlations_per_s": m.timing.correlations_per_s,
+            "latency_s": m.timing.latency_s,
+            "pairs_processed": int(done.sum()),
+            "pairs_dropped": int((~done).sum()),
+            "frames_measured": int(done.any(axis=1).sum()),
+            "mean_result_age_s": float(lat.mean()) if lat.size else None,
+        }
+    if st.link_stats is not None:
+        out["link"] = dict(st.link_stats)
+    return out
 
 
 def geometry_summary(m: Models) -> dict:

@@ -324,10 +324,86 @@ class CameraConfig(_Model):
     main_imager: MainImagerConfig = MainImagerConfig()
 
 
+class SlmConfig(_Model):
+    rows: int = Field(description="pixels down")
+    cols: int = Field(description="pixels across")
+    pitch_m: float = Field(gt=0.0, lt=1e-3, description="pixel pitch, m")
+    bits: int = Field(8, ge=1, le=16, description="drive levels 2^bits")
+    fill_factor: float = Field(0.6, gt=0.0, le=1.0, description="aperture area / pixel area")
+    contrast: float = Field(100.0, ge=1.0, description="intensity contrast ratio (on / off)")
+
+
+class OpticalSensorConfig(_Model):
+    rows: int = Field(description="pixels down")
+    cols: int = Field(description="pixels across")
+    pitch_m: float = Field(gt=0.0, lt=1e-3, description="pixel pitch, m")
+    bits: int = Field(8, ge=1, le=16, description="ADC bits")
+    full_well_e: float = Field(20000.0, gt=0.0, description="full well, electrons")
+    read_noise_e: float = Field(15.0, ge=0.0, description="read noise, electrons rms")
+    gamma: float = Field(1.0, gt=0.0, le=3.0, description="response curve exponent")
+    saturated_fraction: float = Field(0.0, ge=0.0, lt=0.5, description="auto-exposure: "
+                                      "fraction of pixels allowed to reach full well")
+
+
+_OPTICAL_EFFECTS = Literal[
+    "slm_amplitude", "slm_quantisation", "slm_contrast", "slm_fill_factor",
+    "fourier_sampling", "dc_stop", "jps_response", "jps_saturation", "jps_noise",
+    "jps_quantisation", "slm2_quantisation", "slm2_contrast", "output_square_law",
+    "output_noise", "output_quantisation"]
+
+
+class OpticalConfig(_Model):
+    """The emulated optical correlator (method 'optical'); defaults: correlator.optical."""
+
+    input_slm: SlmConfig = SlmConfig(rows=480, cols=640, pitch_m=20e-6)
+    wavelength_m: float = Field(632.8e-9, gt=1e-7, lt=2e-6, description="laser wavelength, m")
+    lens1_focal_m: float = Field(0.30, gt=0.0, description="first Fourier lens focal length, m")
+    jps_sensor: OpticalSensorConfig = OpticalSensorConfig(rows=1024, cols=1024, pitch_m=7.4e-6,
+                                                          saturated_fraction=0.1)
+    dc_stop_cycles: float = Field(6.0, ge=0.0, description="DC stop radius, cycles per block")
+    slm2: SlmConfig = SlmConfig(rows=1024, cols=1024, pitch_m=15e-6, fill_factor=1.0)
+    lens2_focal_m: float = Field(0.225, gt=0.0, description="second lens focal length, m")
+    output_sensor: OpticalSensorConfig = OpticalSensorConfig(rows=480, cols=640, pitch_m=7.4e-6)
+    effects_off: list[_OPTICAL_EFFECTS] = Field(
+        default_factory=list, description="hardware effects to switch off (all on by default)")
+
+
+class TimingConfig(_Model):
+    """When the correlator's results arrive (the seed's hardware model: 60 correlations/s)."""
+
+    enabled: bool = Field(False, description="results act when the device would deliver them "
+                          "(false: every block of every frame, one frame later)")
+    transforms_per_s: float = Field(30.0, gt=0.0, description="Fourier transforms per second "
+                                    "of one processor")
+    processors: int = Field(2, ge=1, le=64, description="cascaded processors")
+    transforms_per_correlation: int = Field(2, ge=1, le=8, description="transforms per "
+                                            "correlation")
+    pairs_per_transform: int = Field(2, ge=1, le=1024, description="image pairs per transform")
+    input_latency_s: float = Field(1.0 / 30.0, ge=0.0, le=10.0, description="frame read-out "
+                                   "to input SLM, s")
+    output_latency_s: float = Field(0.005, ge=0.0, le=10.0, description="correlation plane to "
+                                    "host, s")
+    policy: Literal["latest", "fifo"] = Field("latest", description="latest: drop waiting "
+                                              "pairs of older frames; fifo: keep all")
+
+
+class LinkConfig(_Model):
+    """How results reach the loop: in process, or as records through the serial driver and a
+    device emulator on a pseudo-terminal (with injected faults)."""
+
+    kind: Literal["direct", "emulator"] = Field("direct", description="direct or emulator")
+    corrupt_probability: float = Field(0.0, ge=0.0, lt=1.0, description="emulator: chance a "
+                                       "record has a flipped bit")
+    drop_probability: float = Field(0.0, ge=0.0, lt=1.0, description="emulator: chance a "
+                                    "record is lost")
+
+
 class CorrelatorConfig(_Model):
-    method: Literal["jtc", "xcorr", "phase"] = Field("jtc", description="correlation method")
-    subpixel: Literal["fourier", "gradient", "parabolic", "gaussian", "com"] = Field(
-        "fourier", description="sub-pixel estimator (fourier: Newton on the spectrum)")
+    method: Literal["jtc", "xcorr", "phase", "optical"] = Field(
+        "jtc", description="correlation method (optical: the emulated JTOC)")
+    subpixel: Literal["fourier", "gradient", "parabolic", "gaussian", "com"] | None = Field(
+        None, description="sub-pixel estimator (default fourier, Newton on the spectrum; "
+        "com for optical, which allows com, parabolic, gaussian)")
     block_px: int = Field(64, ge=16, le=1024, description="block side, px")
     n_blocks: int = Field(4, ge=1, le=1024, description="number of tracked blocks")
     psr_threshold: float = Field(7.0, ge=0.0, description="peak-to-sidelobe threshold")
@@ -335,6 +411,42 @@ class CorrelatorConfig(_Model):
                                "of a valid measurement, px")
     rewindow: bool = Field(True, description="second pass with windows on the common content "
                            "(about 2x the cost; false: one FFT per block)")
+    optical: OpticalConfig = OpticalConfig()
+    timing: TimingConfig = TimingConfig()
+    link: LinkConfig = LinkConfig()
+
+    @model_validator(mode="after")
+    def _optical_subpixel(self):
+        if self.method == "optical" and self.subpixel not in (None, "com", "parabolic",
+                                                              "gaussian"):
+            raise ValueError(f"subpixel '{self.subpixel}' needs the spectrum; the optical "
+                             "correlator reads a correlation plane: use com, parabolic or "
+                             "gaussian")
+        if self.link.kind == "emulator" and self.method != "optical":
+            raise ValueError("link.kind 'emulator' serves the optical emulation: set "
+                             "correlator.method to 'optical'")
+        return self
+
+    def jtoc_model(self):
+        """The optical correlator's hardware model (correlator.optical.JtocModel)."""
+        from correlator.optical import EFFECTS, JtocModel, SensorSpec, SlmSpec
+
+        o = self.optical
+        return JtocModel(
+            SlmSpec(**o.input_slm.model_dump()), o.wavelength_m, o.lens1_focal_m,
+            SensorSpec(**o.jps_sensor.model_dump()), o.dc_stop_cycles,
+            SlmSpec(**o.slm2.model_dump()), o.lens2_focal_m,
+            SensorSpec(**o.output_sensor.model_dump()),
+            frozenset(EFFECTS) - set(o.effects_off))
+
+    def pipeline_timing(self):
+        """The device's schedule model (correlator.timing.PipelineTiming), or None."""
+        from correlator.timing import PipelineTiming
+
+        t = self.timing
+        if not t.enabled:
+            return None
+        return PipelineTiming(**t.model_dump(exclude={"enabled"}))
 
 
 class CompensationConfig(_Model):

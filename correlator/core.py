@@ -299,16 +299,21 @@ class Correlator:
         if self._optical is not None:  # one pass: the emulation threads its FFTs itself
             seeds = (rng if rng is not None else self._rng).integers(0, 2**63 - 1, size=n)
             parts = [self._measure_optical(cur_arr, seeds, idx)]
-        elif index is not None:
-            full = self.measure(_scatter(cur_arr, idx, self._ref0.shape))
-            return ShiftResult(full.shift[idx], full.valid[idx], full.peak[idx], full.crlb[idx])
-        elif len(chunks := self._chunks(n)) == 1:
-            parts = [self._measure(cur_arr, slice(0, n))]
         else:
-            # one BLAS thread per worker: the per-block matrix products are small, and nested
-            # BLAS threads on top of ours would oversubscribe the cores
-            with _blas().limit(limits=1, user_api="blas"), ThreadPoolExecutor(len(chunks)) as ex:
-                parts = list(ex.map(lambda s: self._measure(cur_arr[s], s), chunks))
+            # reference blocks of each chunk: a slice (no copy) unless a subset was asked for
+            def ref_sel(s: slice):
+                return s if index is None else idx[s]
+
+            chunks = self._chunks(n)
+            if len(chunks) == 1:
+                parts = [self._measure(cur_arr, ref_sel(slice(0, n)))]
+            else:
+                # one BLAS thread per worker: the per-block matrix products are small, and
+                # nested BLAS threads on top of ours would oversubscribe the cores
+                with (_blas().limit(limits=1, user_api="blas"),
+                      ThreadPoolExecutor(len(chunks)) as ex):
+                    parts = list(ex.map(lambda s: self._measure(cur_arr[s], ref_sel(s)),
+                                        chunks))
         shift, valid, psr, crlb = (np.concatenate([p[i] for p in parts]) for i in range(4))
         if self._single and np.ndim(cur) == 2:
             return ShiftResult(shift[0], valid[0], psr[0], crlb[0])
@@ -327,7 +332,8 @@ class Correlator:
         edges = np.linspace(0, n, k + 1).astype(int)
         return [slice(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
 
-    def _measure(self, cur_arr: np.ndarray, sl: slice):
+    def _measure(self, cur_arr: np.ndarray, sl: slice | np.ndarray):
+        """Results of ``cur_arr`` against the reference blocks ``sl`` (slice or indices)."""
         o, lay = self.options, self._lay
         h, w = self.shape
         cur0, cur_ok = _sanitise(cur_arr)
@@ -477,14 +483,6 @@ class Correlator:
 def _blas() -> ThreadpoolController:
     """The process's BLAS thread pools (inspected once: the inspection costs milliseconds)."""
     return ThreadpoolController()
-
-
-def _scatter(part: np.ndarray, idx: np.ndarray, shape: tuple) -> np.ndarray:
-    """A full stack of ``shape`` with ``part`` at ``idx`` (other blocks: copies of part[0])."""
-    out = np.empty(shape, part.dtype)
-    out[:] = part[:1]
-    out[idx] = part
-    return out
 
 
 def _lag(i: np.ndarray, size: int) -> np.ndarray:

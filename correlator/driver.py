@@ -321,11 +321,13 @@ class PtyDevice:
 
 
 def motion_records(frame: int, t_us: np.ndarray, shift_px: np.ndarray, valid: np.ndarray,
-                   peak: np.ndarray) -> list[Record]:
-    """Motion records of one frame's blocks (seq is set by the device when sent)."""
-    return [Record(KIND_MOTION, STATUS_VALID if valid[b] else 0, 0, int(t_us[b]), int(frame), b,
-                   (float(shift_px[b, 0]), float(shift_px[b, 1])), float(peak[b]))
-            for b in range(len(valid))]
+                   peak: np.ndarray, blocks: np.ndarray | None = None) -> list[Record]:
+    """Motion records of one frame's blocks (ids ``blocks``, default 0..n-1); the device sets
+    the sequence numbers when it sends them."""
+    ids = np.arange(len(valid)) if blocks is None else np.asarray(blocks)
+    return [Record(KIND_MOTION, STATUS_VALID if valid[i] else 0, 0, int(t_us[i]), int(frame),
+                   int(ids[i]), (float(shift_px[i, 0]), float(shift_px[i, 1])), float(peak[i]))
+            for i in range(len(valid))]
 
 
 class LoopbackLink:
@@ -348,10 +350,7 @@ class LoopbackLink:
                   valid: np.ndarray, peak: np.ndarray):
         """Send records of ``blocks`` (n,) and read them back: (shift (n, 2), valid (n,),
         peak (n,), received (n,)) as decoded; missing records give NaN, False, 0, False."""
-        recs = motion_records(frame, t_us, shift_px, valid, peak)
-        recs = [Record(r.kind, r.status, 0, r.timestamp_us, r.frame, int(blocks[r.block]),
-                       r.shift_px, r.peak) for r in recs]
-        self.device.send(recs)
+        self.device.send(motion_records(frame, t_us, shift_px, valid, peak, blocks))
         self.heartbeats.add(self.device.seq)
         self.device.heartbeat(int(t_us.max()) if len(t_us) else 0)
         last = self.device.seq - 1

@@ -153,7 +153,6 @@ def device_emulator(
     timing; each record is written when the device would deliver it. Read it with
     `imc device-read LINK` or correlator.driver.Driver.
     """
-    import dataclasses
     import time
 
     import numpy as np
@@ -187,9 +186,8 @@ def device_emulator(
             t_dev = float(sched.deliver_s[k, b])
             if speed > 0:
                 time.sleep(max(0.0, t0 + t_dev / speed - time.monotonic()))
-            rec = motion_records(k, np.array([1e6 * t_dev]), st.shifts[k, b][None],
-                                 st.valid[k, b][None], st.peaks[k, b][None])[0]
-            dev.send([dataclasses.replace(rec, block=b)])
+            dev.send(motion_records(k, np.array([1e6 * t_dev]), st.shifts[k, b][None],
+                                    st.valid[k, b][None], st.peaks[k, b][None], [b]))
         end = time.monotonic() + linger_s
         while time.monotonic() < end:
             dev.heartbeat()

@@ -7,6 +7,7 @@ silently fall back to defaults). :func:`load_scenario` turns any problem into a
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 from datetime import datetime
 from pathlib import Path
@@ -15,6 +16,8 @@ from typing import Literal
 import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from correlator.optical import EFFECTS, JtocModel, SensorSpec, SlmSpec
 
 
 class ScenarioError(ValueError):
@@ -352,18 +355,26 @@ _OPTICAL_EFFECTS = Literal[
     "output_noise", "output_quantisation"]
 
 
+_JTOC = JtocModel()  # the defaults below are the hardware model's, written once there
+
+
 class OpticalConfig(_Model):
     """The emulated optical correlator (method 'optical'); defaults: correlator.optical."""
 
-    input_slm: SlmConfig = SlmConfig(rows=480, cols=640, pitch_m=20e-6)
-    wavelength_m: float = Field(632.8e-9, gt=1e-7, lt=2e-6, description="laser wavelength, m")
-    lens1_focal_m: float = Field(0.30, gt=0.0, description="first Fourier lens focal length, m")
-    jps_sensor: OpticalSensorConfig = OpticalSensorConfig(rows=1024, cols=1024, pitch_m=7.4e-6,
-                                                          saturated_fraction=0.1)
-    dc_stop_cycles: float = Field(6.0, ge=0.0, description="DC stop radius, cycles per block")
-    slm2: SlmConfig = SlmConfig(rows=1024, cols=1024, pitch_m=15e-6, fill_factor=1.0)
-    lens2_focal_m: float = Field(0.225, gt=0.0, description="second lens focal length, m")
-    output_sensor: OpticalSensorConfig = OpticalSensorConfig(rows=480, cols=640, pitch_m=7.4e-6)
+    input_slm: SlmConfig = SlmConfig(**dataclasses.asdict(_JTOC.input_slm))
+    wavelength_m: float = Field(_JTOC.wavelength_m, gt=1e-7, lt=2e-6,
+                                description="laser wavelength, m")
+    lens1_focal_m: float = Field(_JTOC.lens1_focal_m, gt=0.0,
+                                 description="first Fourier lens focal length, m")
+    jps_sensor: OpticalSensorConfig = OpticalSensorConfig(
+        **dataclasses.asdict(_JTOC.jps_sensor))
+    dc_stop_cycles: float = Field(_JTOC.dc_stop_cycles, ge=0.0,
+                                  description="DC stop radius, cycles per block")
+    slm2: SlmConfig = SlmConfig(**dataclasses.asdict(_JTOC.slm2))
+    lens2_focal_m: float = Field(_JTOC.lens2_focal_m, gt=0.0,
+                                 description="second lens focal length, m")
+    output_sensor: OpticalSensorConfig = OpticalSensorConfig(
+        **dataclasses.asdict(_JTOC.output_sensor))
     effects_off: list[_OPTICAL_EFFECTS] = Field(
         default_factory=list, description="hardware effects to switch off (all on by default)")
 
@@ -429,8 +440,6 @@ class CorrelatorConfig(_Model):
 
     def jtoc_model(self):
         """The optical correlator's hardware model (correlator.optical.JtocModel)."""
-        from correlator.optical import EFFECTS, JtocModel, SensorSpec, SlmSpec
-
         o = self.optical
         return JtocModel(
             SlmSpec(**o.input_slm.model_dump()), o.wavelength_m, o.lens1_focal_m,

@@ -48,6 +48,7 @@ import scipy.fft as sfft
 from threadpoolctl import ThreadpoolController
 
 from correlator import gradient, jtc, peaks, spectral
+from correlator.masked import MaskedDetector
 from correlator.optical import JtocModel, OpticalJtc
 
 METHODS = ("jtc", "xcorr", "phase", "optical")
@@ -55,9 +56,15 @@ SUBPIXEL = ("fourier", "gradient", "parabolic", "gaussian", "com")
 #: peak fits an optical correlator can do on its output plane
 OPTICAL_SUBPIXEL = ("com", "parabolic", "gaussian")
 WEIGHTINGS = ("snr", "flat")
+DETECTIONS = ("auto", "band", "masked")
 #: common-content passes at most, and the change (px) below which a block stops repeating
-COMMON_PASSES = 4
+COMMON_PASSES = 6
 COMMON_PASS_TOL_PX = 0.002
+#: a block whose last pass still moved it by more than this is not converged
+COMMON_PASS_MAX_MOVE_PX = 0.02
+#: Aitken extrapolation: smallest previous move (px) and the range of move ratios it trusts
+AITKEN_MIN_PX = 0.005
+AITKEN_RATIO = (0.2, 0.9)
 
 
 @dataclass(frozen=True)
@@ -98,6 +105,17 @@ class CorrelatorOptions:
     iterations : Newton (fourier) or Lucas-Kanade (gradient) iterations.
     workers : threads over the block stack (-1: all cores).
     optical : the hardware model of method 'optical' (default: :class:`JtocModel`()).
+    detection : integer-peak search. 'band': the SNR-whitened circular surface (fast; for
+        shifts up to a quarter block). 'masked': the overlap-normalised correlation of
+        zero-padded blocks (:mod:`correlator.masked`; unambiguous up to the block size, robust
+        at small overlap). 'auto' (default): 'masked' when ``max_shift_px`` exceeds a quarter
+        of the block, else 'band'.
+    min_overlap : smallest fraction of the block area two blocks must share for a lag to be
+        searched by the 'masked' detection.
+    max_rival_ratio : 'masked' detection only: a result is invalid when another local maximum
+        of the overlap-normalised score reaches this fraction of the best (an ambiguous match:
+        one straight edge, a repeated pattern). 0.94 keeps > 99 % of the correct matches on
+        rendered rural and mountain scenes while rejecting the ambiguous ones.
     """
 
     method: str = "jtc"
@@ -112,6 +130,9 @@ class CorrelatorOptions:
     iterations: int = 3
     workers: int = -1
     optical: JtocModel | None = None
+    detection: str = "auto"
+    min_overlap: float = 0.25
+    max_rival_ratio: float = 0.94
 
     def __post_init__(self) -> None:
         if self.subpixel is None:
@@ -123,7 +144,8 @@ class CorrelatorOptions:
             if self.optical is None:
                 object.__setattr__(self, "optical", JtocModel())
         for name, allowed in (("method", METHODS), ("subpixel", SUBPIXEL),
-                              ("jtc_filter", jtc.JTC_FILTERS), ("weighting", WEIGHTINGS)):
+                              ("jtc_filter", jtc.JTC_FILTERS), ("weighting", WEIGHTINGS),
+                              ("detection", DETECTIONS)):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
         if self.jtc_filter == "plain" and not self.joint_plane:
@@ -133,6 +155,10 @@ class CorrelatorOptions:
             raise ValueError("psr_threshold and iterations must be >= 0, max_crlb_px > 0")
         if self.max_shift_px is not None and self.max_shift_px < 0:
             raise ValueError(f"max_shift_px must be >= 0, got {self.max_shift_px}")
+        if not 0.0 < self.min_overlap <= 1.0:
+            raise ValueError(f"min_overlap must be within (0, 1], got {self.min_overlap}")
+        if not 0.0 < self.max_rival_ratio <= 1.0:
+            raise ValueError(f"max_rival_ratio must be within (0, 1], got {self.max_rival_ratio}")
 
 
 def _as_stack(a: np.ndarray, name: str) -> np.ndarray:
@@ -266,6 +292,15 @@ class Correlator:
         self._ref_wconj = (self._ref_wts * self._ref_conj).astype(np.complex64)
         self._ref_m = spectral.gradient_power(self._ref_wts, self._ref_pow, self._lay.full)
         self._e_cur = float((self._lay.win_cur**2).sum())
+        o = self.options
+        masked = o.detection == "masked" or (o.detection == "auto"
+                                             and self.max_shift_px > min(h, w) / 4)
+        self._masked = None
+        if masked and o.method != "optical":
+            # bins of half the band's decimation (2 px for 256^2 blocks): finer bins find
+            # the right lag on low-texture, edge-dominated blocks more often
+            self._masked = MaskedDetector(self._ref0, self.max_shift_px, o.min_overlap,
+                                          max(1, self._lay.q // 2))
         self._optical = None
         if self.options.method == "optical":
             self._optical = OpticalJtc(self.options.optical, h, w, self.max_shift_px)
@@ -342,28 +377,32 @@ class Correlator:
         y = self._ref_wconj[sl] * cspec
         noise = 0.5 * (self._ref_noise[sl] + _noise_var(cspec, self._e_cur, lay))
 
-        # ---- detection: decimated SNR-whitened surface, integer peak, PSR
+        # ---- detection: the integer peak (and, for the band search, its PSR)
         xb = y[:, lay.band_rows, : lay.band_cols]
-        mag = np.abs(y).reshape(len(y), -1)
-        floor = (mag @ lay.outer) / lay.outer_n
-        floor = np.maximum(floor, 1e-6 * mag.max(axis=1) + 1e-30)
-        white = xb / (np.abs(xb) + floor[:, None, None])
-        hc, wc = len(lay.band_rows), 2 * (lay.band_cols - 1)
-        dsurf = sfft.irfft2(white, s=(hc, wc), workers=1)
-        iy, ix = self._argmax(dsurf, lay.q)
-        psr = peaks.psr(dsurf, iy, ix)
-        frac = peaks.peak_fit(peaks.neighbourhood(dsurf, iy, ix).astype(np.float64),
-                              "parabolic")
-        d0 = lay.q * (np.column_stack([_lag(iy, hc), _lag(ix, wc)]) + frac)
+        if self._masked is not None:
+            d0, _, rival = self._masked.detect(cur0, sl)
+        else:
+            dsurf = self._whitened(y)
+            iy, ix = self._argmax(dsurf, lay.q)
+            psr = peaks.psr(dsurf, iy, ix)
+            frac = peaks.peak_fit(peaks.neighbourhood(dsurf, iy, ix).astype(np.float64),
+                                  "parabolic")
+            d0 = lay.q * (np.column_stack([_lag(iy, dsurf.shape[1]), _lag(ix, dsurf.shape[2])])
+                          + frac)
 
         # ---- sub-pixel
         fits = ("parabolic", "gaussian", "com", "gradient")
         if o.subpixel in fits or o.joint_plane:
             surf = self._method_surface(self._ref_conj[sl] * cspec, cur_w, sl)
-            jy, jx = self._argmax(surf, 1)
+            if self._masked is not None:  # fit around the detected lag (may exceed h / 2)
+                base = np.rint(d0).astype(int)
+                jy, jx = base[:, 0] % h, base[:, 1] % w
+            else:
+                jy, jx = self._argmax(surf, 1)
+                base = np.column_stack([_lag(jy, h), _lag(jx, w)])
             nb = peaks.neighbourhood(surf, jy, jx).astype(np.float64)
             kind = o.subpixel if o.subpixel in ("parabolic", "gaussian", "com") else "parabolic"
-            d0 = np.column_stack([_lag(jy, h), _lag(jx, w)]) + peaks.peak_fit(nb, kind)
+            d0 = base + peaks.peak_fit(nb, kind)
         if o.subpixel == "fourier":
             shift, crlb, converged = self._fourier(y, xb, cur0, noise, d0, sl)
         elif o.subpixel == "gradient":
@@ -374,6 +413,9 @@ class Correlator:
             shift, converged = d0, np.ones(len(d0), bool)
             _, _, hess = spectral.newton_terms(y, shift, lay.full)
             crlb = spectral.sandwich_crlb(self._ref_m[sl], noise, hess, h * w)
+        if self._masked is not None:
+            psr, agree = self._common_psr(self._ref0[sl], cur0, noise, shift)
+            converged &= agree & (rival < o.max_rival_ratio)
         valid = (
             self._ref_ok[sl]
             & cur_ok
@@ -406,6 +448,33 @@ class Correlator:
                  & np.all(crlb <= o.max_crlb_px, axis=1))
         return shift, valid, np.nan_to_num(psr), crlb
 
+    def _whitened(self, y: np.ndarray) -> np.ndarray:
+        """Decimated surface (N, h/q, w/q) of the central band of the SNR-whitened spectra
+        y / (|y| + noise floor), the floor being the mean |y| beyond 0.35 cycles/px."""
+        lay = self._lay
+        xb = y[:, lay.band_rows, : lay.band_cols]
+        mag = np.abs(y).reshape(len(y), -1)
+        floor = (mag @ lay.outer) / lay.outer_n
+        floor = np.maximum(floor, 1e-6 * mag.max(axis=1) + 1e-30)
+        white = xb / (np.abs(xb) + floor[:, None, None])
+        return sfft.irfft2(white, s=(len(lay.band_rows), 2 * (lay.band_cols - 1)), workers=1)
+
+    def _common_psr(self, ref0, cur0, noise, d):
+        """PSR (N,) of the whitened surface of the content common at lag ``d`` (N, 2) px, and
+        whether that surface's own peak agrees with ``d`` to a decimation step (mod the block):
+        after a masked detection, the statistic on which the threshold is applied."""
+        lay = self._lay
+        h, w = self.shape
+        y, *_ = self._common_spectra(ref0, cur0, noise, d)
+        dsurf = self._whitened(y)
+        n, hs, ws = dsurf.shape
+        iy, ix = np.unravel_index(dsurf.reshape(n, -1).argmax(axis=1), (hs, ws))
+        psr = peaks.psr(dsurf, iy, ix)
+        lag = lay.q * np.column_stack([_lag(iy, hs), _lag(ix, ws)])
+        size = np.array([h, w])
+        diff = np.mod(lag - d + size / 2, size) - size / 2
+        return psr, np.all(np.abs(diff) <= lay.q + 0.5, axis=1)
+
     def _argmax(self, surf: np.ndarray, q: int) -> tuple[np.ndarray, np.ndarray]:
         """Integer peak (iy, ix) of wrapped surfaces within the search range (scaled by q)."""
         n, hs, ws = surf.shape
@@ -435,31 +504,65 @@ class Correlator:
         full-band Newton, common-content pass."""
         o, lay = self.options, self._lay
         h, w = self.shape
-        d, *_ = spectral.newton_peak(yb, d0, lay.band, 2, float(lay.q))
-        d, hess, step = spectral.newton_peak(y, d, lay.full, o.iterations, 0.5)
-        crlb = spectral.sandwich_crlb(self._ref_m[sl], noise, hess, h * w)
-        converged = (np.abs(step).max(axis=1) < 0.01) & (np.abs(d - d0).max(axis=1) < lay.q + 1)
-        # ---- common-content pass: blocks moved beyond the exact margin (or all, if asked)
-        far = np.any(np.abs(d) > np.array(lay.margin), axis=1) & np.isfinite(d).all(axis=1)
-        redo = np.ones(len(d), bool) if o.rewindow else far
-        # The windows follow the estimate, so the pass is repeated until it is self-consistent:
-        # a window displaced by e biases the estimate by ~0.1-0.2 e (a strong edge in the
-        # taper), so a first-pass error of 0.3 px needs about three passes to fall below 0.002.
-        idx = np.flatnonzero(redo)
+        if self._masked is not None:
+            # the masked lag is good to a bin: go straight to the common content (the circular
+            # surface of a far-shifted pair is dominated by content the blocks do not share)
+            # (this coarse pass's own convergence is not required: the passes below must)
+            d, crlb, _ = self._common_pass(np.arange(len(d0)), sl, cur0, noise, d0, coarse=True)
+            converged = np.abs(d - d0).max(axis=1) < lay.q + 1
+            idx = np.flatnonzero(np.isfinite(d).all(axis=1))
+        else:
+            d, *_ = spectral.newton_peak(yb, d0, lay.band, 2, float(lay.q))
+            d, hess, step = spectral.newton_peak(y, d, lay.full, o.iterations, 0.5)
+            crlb = spectral.sandwich_crlb(self._ref_m[sl], noise, hess, h * w)
+            converged = ((np.abs(step).max(axis=1) < 0.01)
+                         & (np.abs(d - d0).max(axis=1) < lay.q + 1))
+            # ---- common-content pass: blocks moved beyond the exact margin (or all, if asked)
+            far = np.any(np.abs(d) > np.array(lay.margin), axis=1) & np.isfinite(d).all(axis=1)
+            idx = np.flatnonzero(np.ones(len(d), bool) if o.rewindow else far)
+        # The windows follow the estimate, so the pass is repeated until it is self-consistent.
+        # A window displaced by e moves the estimate by s e: s ~ 0.1-0.2 on even texture, up to
+        # ~0.7 where a bright, smooth structure (a cloud, a snow field) lies in the taper. The
+        # passes contract linearly, d' - d* = s (d - d*), so after two plain moves each
+        # component jumps to its fixed point (Aitken's delta-squared), then starts over.
+        prev = np.zeros_like(d)
+        moved = np.zeros(len(d))
         for _ in range(COMMON_PASSES):
             if not len(idx):
                 break
             d2, c2, ok2 = self._common_pass(idx, sl, cur0[idx], noise[idx], d[idx])
-            moved = np.abs(d2 - d[idx]).max(axis=1)
-            d[idx], crlb[idx], converged[idx] = d2, c2, converged[idx] & ok2
-            idx = idx[np.isfinite(moved) & (moved > COMMON_PASS_TOL_PX)]
+            step = d2 - d[idx]
+            p = prev[idx]
+            ratio = np.divide(step, p, out=np.zeros_like(step), where=np.abs(p) > AITKEN_MIN_PX)
+            jump = (ratio > AITKEN_RATIO[0]) & (ratio < AITKEN_RATIO[1])
+            prev[idx] = np.where(jump, 0.0, step)
+            step = np.where(jump, step / (1.0 - np.where(jump, ratio, 0.0)), step)
+            d[idx], crlb[idx], converged[idx] = d[idx] + step, c2, converged[idx] & ok2
+            moved[idx] = np.abs(step).max(axis=1)
+            idx = idx[np.isfinite(moved[idx]) & (moved[idx] > COMMON_PASS_TOL_PX)]
+        # still moving after the last pass: not self-consistent, not a result to trust
+        converged &= ~(moved > COMMON_PASS_MAX_MOVE_PX)
         return d, crlb, converged
 
-    def _common_pass(self, idx, sl, cur0, noise, d):
-        """Both windows centred on the content common to ref and cur (shifted by -+d/2)."""
+    def _common_pass(self, idx, sl, cur0, noise, d, coarse: bool = False):
+        """Both windows centred on the content common to ref and cur (shifted by -+d/2);
+        ``coarse``: start with two band Newton steps (d good only to a decimation step)."""
         o, lay = self.options, self._lay
         h, w = self.shape
-        ref0 = self._ref0[sl][idx]
+        y, wts, rpow = self._common_spectra(self._ref0[sl][idx], cur0, noise, d)
+        if coarse:
+            yb = y[:, lay.band_rows, : lay.band_cols]
+            d, *_ = spectral.newton_peak(yb, d, lay.band, 2, float(lay.q))
+        d2, hess, step = spectral.newton_peak(y, d, lay.full, o.iterations, 0.5)
+        m = spectral.gradient_power(wts, rpow, lay.full)
+        crlb = spectral.sandwich_crlb(m, noise, hess, h * w)
+        return d2, crlb, np.abs(step).max(axis=1) < 0.01
+
+    def _common_spectra(self, ref0, cur0, noise, d):
+        """Weighted cross spectra (N, h, k), weights and ref power with both windows centred
+        on the content common to ref and cur at lag ``d`` (shifted by -+d/2)."""
+        lay = self._lay
+        h, w = self.shape
         tr = lay.taper
         wy_r = spectral.tukey_1d(h, tr[0], np.abs(d[:, 0]) / 2, -d[:, 0] / 2)
         wx_r = spectral.tukey_1d(w, tr[1], np.abs(d[:, 1]) / 2, -d[:, 1] / 2)
@@ -467,16 +570,22 @@ class Correlator:
         wx_c = spectral.tukey_1d(w, tr[1], np.abs(d[:, 1]) / 2, d[:, 1] / 2)
         win_r = wy_r[:, :, None] * wx_r[:, None, :]
         win_c = wy_c[:, :, None] * wx_c[:, None, :]
-        rs = sfft.rfft2(ref0 * win_r, workers=1)
-        cs = sfft.rfft2(cur0 * win_c, workers=1)
+        # each block's mean over its window goes first: the two block means differ by the
+        # content they do not share, and that offset times the window would bias the peak
+        rs = sfft.rfft2(_demeaned(ref0, win_r) * win_r, workers=1)
+        cs = sfft.rfft2(_demeaned(cur0, win_c) * win_c, workers=1)
         rpow = (rs.real**2 + rs.imag**2).astype(np.float32)
         e = (win_r**2).sum(axis=(1, 2))
         wts = self._weights(rpow, noise, e)
         y = (wts * np.conj(rs) * cs).astype(np.complex64)
-        d2, hess, step = spectral.newton_peak(y, d, lay.full, o.iterations, 0.5)
-        m = spectral.gradient_power(wts, rpow, lay.full)
-        crlb = spectral.sandwich_crlb(m, noise, hess, h * w)
-        return d2, crlb, np.abs(step).max(axis=1) < 0.01
+        return y, wts, rpow
+
+
+def _demeaned(blocks: np.ndarray, win: np.ndarray) -> np.ndarray:
+    """Blocks (N, h, w) less their window-weighted means."""
+    mean = (np.einsum("nij,nij->n", blocks, win, dtype=np.float64)
+            / np.maximum(win.sum(axis=(1, 2), dtype=np.float64), 1e-30))
+    return blocks - mean.astype(np.float32)[:, None, None]
 
 
 @lru_cache(maxsize=1)

@@ -68,8 +68,12 @@ def _shifts(n: int, cfg: Table2Config, rng: np.random.Generator) -> np.ndarray:
 
 
 def run_class(kind: str, cfg: Table2Config, seed: int,
-              log: Callable[[str], None] | None = None) -> dict:
-    """Run the protocol on one scene class; returns counts, error statistics and timings."""
+              log: Callable[[str], None] | None = None, pairs: bool = False) -> dict:
+    """Run the protocol on one scene class; returns counts, error statistics and timings.
+
+    ``pairs=True`` adds the per-pair arrays under ``"pairs_detail"`` (truth, error, valid,
+    peak, crlb, overlap) for diagnosis.
+    """
     from scene.kernel import Renderer, Sun
 
     rng = np.random.default_rng([seed, SCENE_INDEX[kind]])
@@ -97,7 +101,7 @@ def run_class(kind: str, cfg: Table2Config, seed: int,
                for k, ph in enumerate(phases)]
     t_render = time.perf_counter() - t0
     opts = CorrelatorOptions(max_shift_px=m + 4.0)
-    errs, valid, corr_s = [], [], 0.0
+    errs, valid, crlbs, corr_s, detail = [], [], [], 0.0, []
     for i in range(cfg.n_refs):
         r0, c0 = m + 2 + (i // g) * b, m + 2 + (i % g) * b
         ref = renders[0][r0:r0 + b, c0:c0 + b].astype(np.float64)
@@ -114,9 +118,13 @@ def run_class(kind: str, cfg: Table2Config, seed: int,
         corr_s += time.perf_counter() - t1
         errs.append(res.shift - truth)
         valid.append(res.valid)
+        crlbs.append(res.crlb)
+        if pairs:
+            detail.append((truth, res.peak, res.crlb))
     err, ok = np.concatenate(errs), np.concatenate(valid)
     good = ok & (np.abs(err) < cfg.success_px).all(axis=1)
     e = err[good]
+    bound = np.concatenate(crlbs)[good]
     out = {
         "kind": kind, "pairs": int(len(err)),
         "success_pct": 100.0 * good.mean(),
@@ -124,21 +132,29 @@ def run_class(kind: str, cfg: Table2Config, seed: int,
         "invalid_pct": 100.0 * (~ok).mean(),
         "std_px": float(np.std(e)) if len(e) > 1 else float("nan"),
         "std_row_col_px": [float(v) for v in e.std(axis=0)] if len(e) > 1 else [np.nan] * 2,
+        # the error an efficient estimator would have on these pairs (RMS of their bounds)
+        "crlb_rms_px": float(np.sqrt(np.mean(bound**2))) if len(e) else float("nan"),
         "bias_row_col_px": [float(v) for v in e.mean(axis=0)] if len(e) else [np.nan] * 2,
         "paper_success_pct": PAPER_TABLE2[kind][0], "paper_std_px": PAPER_TABLE2[kind][1],
         "render_s": t_render, "correlate_s": corr_s,
         "correlations_per_s": len(err) / corr_s,
         "canvas_px": canvas, "variant": r.variant,
     }
+    if pairs:
+        truth, peak, crlb = (np.concatenate([d[i] for d in detail]) for i in range(3))
+        out["pairs_detail"] = {"truth": truth, "error": err, "valid": ok, "peak": peak,
+                               "crlb": crlb,
+                               "overlap": np.prod(1 - np.abs(truth) / b, axis=1)}
     if log:
         log(format_row(out))
     return out
 
 
-
 def format_row(row: dict) -> str:
+    """One printed line: success, std of error (the paper's and the pairs' bound), counts."""
     return (f"{row['kind']:11s} success {row['success_pct']:5.1f} % (paper "
             f"{row['paper_success_pct']:5.1f})  std {row['std_px']:.4f} px (paper "
-            f"{row['paper_std_px']:.4f})  wrong {row['wrong_pct']:4.1f} %  invalid "
+            f"{row['paper_std_px']:.4f}, bound {row['crlb_rms_px']:.4f})  wrong "
+            f"{row['wrong_pct']:4.1f} %  invalid "
             f"{row['invalid_pct']:5.1f} %  [{row['pairs']} pairs, render {row['render_s']:.0f} s,"
             f" {row['correlations_per_s']:.0f} corr/s]")

@@ -1,11 +1,14 @@
 """Render speed: seconds per frame of the exact moving pinhole sensor vs a bare Mitsuba render.
 
 Usage: python benchmarks/bench_render.py [--quick]; writes benchmarks/out/render.json.
+Both renderers are timed alternately and the medians compared (this machine's speed drifts
+by up to 2x within minutes).
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import resource
 import time
@@ -21,8 +24,8 @@ from scene.pinhole import ray_keyframes
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def bare_perspective_s(mi, terrain_mesh_scene: dict, size: int, spp: int, reps: int) -> float:
-    """Seconds per frame of Mitsuba's stock perspective sensor on the same scene."""
+def bare_perspective_scene(mi, terrain_mesh_scene: dict, size: int, spp: int):
+    """Mitsuba's stock perspective sensor looking down from 688 km on the same scene."""
     d = dict(terrain_mesh_scene)
     d["sensor"] = {
         "type": "perspective", "fov": float(np.degrees(size * 1.2e-6)), "far_clip": 1e7,
@@ -31,19 +34,38 @@ def bare_perspective_s(mi, terrain_mesh_scene: dict, size: int, spp: int, reps: 
                  "rfilter": {"type": "gaussian"}},
         "sampler": {"type": "stratified", "sample_count": spp},
     }
-    scene = mi.load_dict(d)
-    np.asarray(mi.render(scene, seed=0))
+    return mi.load_dict(d)
+
+
+def _bare_render(mi, scene, seed: int) -> np.ndarray:
+    return np.asarray(mi.render(scene, seed=seed))
+
+
+def interleaved_s(ours, bare, budget_s: float) -> tuple[float, float, int]:
+    """Median seconds per frame of two renderers timed alternately (after one warm-up each,
+    then as many pairs as fit ``budget_s``, 5 to 40), so that the machine's drifting speed
+    hits both alike. Returns (ours, bare, pairs)."""
+    ours(0)
     t0 = time.perf_counter()
-    for k in range(reps):
-        np.asarray(mi.render(scene, seed=k + 1))
-    return (time.perf_counter() - t0) / reps
+    bare(0)
+    reps = int(np.clip(budget_s / (2.0 * (time.perf_counter() - t0)), 5, 40))
+    t_ours, t_bare = [], []
+    for k in range(1, reps + 1):
+        t0 = time.perf_counter()
+        ours(k)
+        t1 = time.perf_counter()
+        bare(k)
+        t2 = time.perf_counter()
+        t_ours.append(t1 - t0)
+        t_bare.append(t2 - t1)
+    return float(np.median(t_ours)), float(np.median(t_bare)), reps
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--quick", action="store_true", help="fewer repetitions")
+    ap.add_argument("--quick", action="store_true", help="a smaller time budget per setting")
     args = ap.parse_args()
-    reps = 2 if args.quick else 5
+    budget_s = 6.0 if args.quick else 20.0
     sc = load_scenario(ROOT / "scenarios" / "quickstart.yaml")
     models = build_models(sc)
     mi, _, choice = load_mitsuba()
@@ -56,17 +78,15 @@ def main() -> None:
         base = {k: v for k, v in r._scene_dict.items() if k not in ("sensor",)}
         for spp in (4, 16, 64):
             r.spp = spp
-            r.render(kf, 0)
-            t0 = time.perf_counter()
-            for k in range(reps):
-                r.render(kf, k + 1)
-            ours = (time.perf_counter() - t0) / reps
-            bare = bare_perspective_s(mi, base, size, spp, reps)
+            scene = bare_perspective_scene(mi, base, size, spp)
+            ours, bare, reps = interleaved_s(functools.partial(r.render, kf),
+                                             functools.partial(_bare_render, mi, scene),
+                                             budget_s)
             rows.append({"size": size, "spp": spp, "s_per_frame": ours, "bare_s": bare,
-                         "overhead": ours / bare})
+                         "overhead": ours / bare, "pairs_timed": reps})
             print(f"{choice.variant:12s} {size}x{size} spp {spp:3d}: {ours:.3f} s/frame "
                   f"({1 / ours:.1f} frames/s), bare perspective {bare:.3f} s, "
-                  f"overhead {ours / bare:.2f}x", flush=True)
+                  f"overhead {ours / bare:.2f}x ({reps} pairs)", flush=True)
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     print(f"peak RSS {peak_mb:.0f} MB")
     out = ROOT / "benchmarks" / "out"

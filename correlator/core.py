@@ -14,10 +14,14 @@ Pipeline for a stack of N block pairs (no Python loop over blocks):
 3. detection: a decimated surface from the central band of the SNR-whitened spectrum
    X / (|X| + noise floor); its integer peak within the search range and its peak-to-sidelobe
    ratio (PSR), the normalised statistic on which the seed paper's threshold is applied.
+   Searches beyond a quarter block use the overlap-normalised correlation of the zero-padded
+   blocks instead (:mod:`correlator.masked`: no alias at d - B, no clutter from unshared
+   content), the PSR of the common content's surface, and a rival-peak test for ambiguity.
 4. sub-pixel: ``fourier`` (default): Newton's method on the continuous correlation evaluated
    from the spectrum (exact band-limited interpolation), first on the central band, then on the
    full band with Knapp-Carter SNR weights; blocks moved by more than m (or all, with
-   ``rewindow=True``) get a second pass with both windows centred on the common content.
+   ``rewindow=True``) get passes with both windows centred on the common content (each
+   block less its window mean), repeated to their fixed point (Aitken-accelerated).
    ``gradient``: symmetric Lucas-Kanade on cubic B-splines. ``parabolic``, ``gaussian``,
    ``com`` (the paper's centre of mass): 3-point fits on the method's full surface.
 5. ``crlb``: the predicted 1-sigma error H^-1 J H^-1 of this estimate from the pair's own
@@ -501,7 +505,8 @@ class Correlator:
 
     def _fourier(self, y, yb, cur0, noise, d0, sl):
         """Fourier refinement: band Newton (on ``yb``, the central band of ``y``), weighted
-        full-band Newton, common-content pass."""
+        full-band Newton, common-content passes; after a masked detection, straight to the
+        common content."""
         o, lay = self.options, self._lay
         h, w = self.shape
         if self._masked is not None:

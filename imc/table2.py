@@ -68,12 +68,8 @@ def _shifts(n: int, cfg: Table2Config, rng: np.random.Generator) -> np.ndarray:
 
 
 def run_class(kind: str, cfg: Table2Config, seed: int,
-              log: Callable[[str], None] | None = None, pairs: bool = False) -> dict:
-    """Run the protocol on one scene class; returns counts, error statistics and timings.
-
-    ``pairs=True`` adds the per-pair arrays under ``"pairs_detail"`` (truth, error, valid,
-    peak, crlb, overlap) for diagnosis.
-    """
+              log: Callable[[str], None] | None = None) -> dict:
+    """Run the protocol on one scene class; returns counts, error statistics and timings."""
     from scene.kernel import Renderer, Sun
 
     rng = np.random.default_rng([seed, SCENE_INDEX[kind]])
@@ -101,7 +97,7 @@ def run_class(kind: str, cfg: Table2Config, seed: int,
                for k, ph in enumerate(phases)]
     t_render = time.perf_counter() - t0
     opts = CorrelatorOptions(max_shift_px=m + 4.0)
-    errs, valid, crlbs, corr_s, detail = [], [], [], 0.0, []
+    errs, valid, crlbs, corr_s = [], [], [], 0.0
     for i in range(cfg.n_refs):
         r0, c0 = m + 2 + (i // g) * b, m + 2 + (i % g) * b
         ref = renders[0][r0:r0 + b, c0:c0 + b].astype(np.float64)
@@ -119,8 +115,6 @@ def run_class(kind: str, cfg: Table2Config, seed: int,
         errs.append(res.shift - truth)
         valid.append(res.valid)
         crlbs.append(res.crlb)
-        if pairs:
-            detail.append((truth, res.peak, res.crlb))
     err, ok = np.concatenate(errs), np.concatenate(valid)
     good = ok & (np.abs(err) < cfg.success_px).all(axis=1)
     e = err[good]
@@ -140,11 +134,6 @@ def run_class(kind: str, cfg: Table2Config, seed: int,
         "correlations_per_s": len(err) / corr_s,
         "canvas_px": canvas, "variant": r.variant,
     }
-    if pairs:
-        truth, peak, crlb = (np.concatenate([d[i] for d in detail]) for i in range(3))
-        out["pairs_detail"] = {"truth": truth, "error": err, "valid": ok, "peak": peak,
-                               "crlb": crlb,
-                               "overlap": np.prod(1 - np.abs(truth) / b, axis=1)}
     if log:
         log(format_row(out))
     return out

@@ -216,8 +216,10 @@ class SceneConfig(_Model):
         "procedural", description="procedural (generic rural/suburban tile), one of the seed "
         "paper's classes (urban, rural, mountain with snow and clouds, waves, calm_water), "
         "or geotiff (user data)")
-    center_lat_deg: float = Field(35.0, ge=-89.0, le=89.0, description="scene centre lat, deg")
-    center_lon_deg: float = Field(10.0, ge=-180.0, le=360.0, description="scene centre lon, deg")
+    center_lat_deg: float = Field(35.0, ge=-89.0, le=89.0, description="scene centre lat, "
+                                  "deg (geotiff in UTM or lat/lon: the file's centre instead)")
+    center_lon_deg: float = Field(10.0, ge=-180.0, le=360.0, description="scene centre lon, "
+                                  "deg (geotiff in UTM or lat/lon: the file's centre instead)")
     size_m: float = Field(512.0, gt=0.0, description="tile side (square), m; geotiff: the "
                           "image's extent")
     texel_m: float = Field(0.4, gt=0.0, description="albedo texel size, m; geotiff: its pixel")

@@ -1,11 +1,16 @@
 """User terrain from GeoTIFFs: an orthophoto (albedo) and an optional DEM. Pure numpy.
 
 The orthophoto's georeferencing (ModelPixelScale + ModelTiepoint, north-up) fixes the tile:
-its pixel size is the texel size, its centre the ENU origin. Projected CRSs (metres) are used
-as they are and the tile is placed at the scenario's ``scene.center_lat_deg/lon_deg``;
-geographic CRSs (degrees) are converted to metres at the tile centre (WGS84 radii of
-curvature), and the centre comes from the file. The DEM (any pixel size, same CRS) is sampled
-bilinearly onto the tile's node grid; it must cover the orthophoto and have no holes there.
+its pixel size is the texel size, its centre the ENU origin. WGS84 / UTM files (EPSG
+326zz north, 327zz south) are placed at their own centre (the inverse transverse Mercator,
+Krueger's series) and their map metres become ground metres (the grid's scale factor,
+0.9996-1.0010, measured with GeographicLib geodesics); the grid's convergence (up to ~2 deg
+at a zone edge at mid latitudes) is not applied: the tile's grid north is taken as north.
+Other projected CRSs (metres) are used as they are and placed at the scenario's
+``scene.center_lat_deg/lon_deg``. Geographic CRSs (degrees) are converted to metres at the
+tile centre (WGS84 radii of curvature), and the centre comes from the file. The DEM (any
+pixel size, same CRS) is sampled bilinearly onto the tile's node grid; it must cover the
+orthophoto and have no holes there.
 
 Every problem raises :class:`GeoTiffError` with a one-line message that names the file and
 the fix.
@@ -17,12 +22,62 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from geographiclib.geodesic import Geodesic
 from scipy import ndimage
 
 from scene.terrain import Terrain
 
 _WGS84_A = 6378137.0
 _WGS84_E2 = 6.69437999014e-3
+_WGS84_F = 1.0 / 298.257223563
+_UTM_K0 = 0.9996
+
+
+def utm_zone(epsg: int | None) -> tuple[int, bool] | None:
+    """(zone, southern) of a WGS84 / UTM EPSG code (32601-32660, 32701-32760), else None."""
+    if epsg is not None and (32601 <= epsg <= 32660 or 32701 <= epsg <= 32760):
+        return epsg % 100, epsg >= 32701
+    return None
+
+
+def utm_to_geodetic(zone: int, southern: bool, easting_m, northing_m):
+    """Latitude and longitude (deg) of UTM coordinates (m), WGS84.
+
+    Krueger's series to third order in n (accurate to a few mm within a zone), as given by
+    Karney, "Transverse Mercator with an accuracy of a few nanometers", J. Geod. 85 (2011).
+    """
+    n = _WGS84_F / (2.0 - _WGS84_F)
+    big_a = _WGS84_A / (1.0 + n) * (1.0 + n**2 / 4.0 + n**4 / 64.0)
+    beta = (n / 2.0 - 2.0 * n**2 / 3.0 + 37.0 * n**3 / 96.0,
+            n**2 / 48.0 + n**3 / 15.0,
+            17.0 * n**3 / 480.0)
+    delta = (2.0 * n - 2.0 * n**2 / 3.0 - 2.0 * n**3,
+             7.0 * n**2 / 3.0 - 8.0 * n**3 / 5.0,
+             56.0 * n**3 / 15.0)
+    xi = (np.asarray(northing_m, np.float64) - (1e7 if southern else 0.0)) / (_UTM_K0 * big_a)
+    eta = (np.asarray(easting_m, np.float64) - 5e5) / (_UTM_K0 * big_a)
+    xi1, eta1 = xi.copy(), eta.copy()
+    for j, b in enumerate(beta, start=1):
+        xi1 = xi1 - b * np.sin(2 * j * xi) * np.cosh(2 * j * eta)
+        eta1 = eta1 - b * np.cos(2 * j * xi) * np.sinh(2 * j * eta)
+    chi = np.arcsin(np.sin(xi1) / np.cosh(eta1))
+    lat = chi + sum(d * np.sin(2 * j * chi) for j, d in enumerate(delta, start=1))
+    lon0 = 6.0 * zone - 183.0
+    lon = lon0 + np.degrees(np.arctan2(np.sinh(eta1), np.cos(xi1)))
+    return np.degrees(lat), lon
+
+
+def utm_ground_scale(zone: int, southern: bool, easting_m: float, northing_m: float,
+                     step_m: float = 1000.0) -> float:
+    """Ground metres per UTM map metre at a point (1 / the grid scale factor), from the
+    geodesic lengths of map steps east and north."""
+    lat0, lon0 = utm_to_geodetic(zone, southern, easting_m, northing_m)
+    out = []
+    for de, dn in ((step_m, 0.0), (0.0, step_m)):
+        lat1, lon1 = utm_to_geodetic(zone, southern, easting_m + de, northing_m + dn)
+        out.append(Geodesic.WGS84.Inverse(float(lat0), float(lon0), float(lat1),
+                                          float(lon1))["s12"] / step_m)
+    return float(np.mean(out))
 
 
 class GeoTiffError(ValueError):
@@ -158,6 +213,9 @@ def terrain_from_geotiff(ortho_path: str | Path, dem_path: str | Path | None,
         m_rad = _WGS84_A * (1 - _WGS84_E2) / (1 - _WGS84_E2 * s * s) ** 1.5
         sx = np.deg2rad(1.0) * n_rad * np.cos(np.deg2rad(lat0))  # metres per degree east
         sy = np.deg2rad(1.0) * m_rad
+    elif (zone := utm_zone(ortho.crs)) is not None:
+        lat0, lon0 = (float(v) for v in utm_to_geodetic(*zone, x_c, y_c))
+        sx = sy = utm_ground_scale(*zone, x_c, y_c)
     else:
         sx = sy = 1.0
     tx, ty = ortho.dx * sx, ortho.dy * sy
@@ -184,7 +242,7 @@ def terrain_from_geotiff(ortho_path: str | Path, dem_path: str | Path | None,
     my, mx = nh // step + 1, nw // step + 1
     if dem_path is None:
         return (Terrain(albedo, texel_m, np.zeros((my, mx), np.float32), spacing),
-                (lat0, lon0) if ortho.geographic else None)
+                None if lat0 is None else (lat0, lon0))
     dem = read_geotiff(dem_path, "scene.geotiff.dem")
     if dem.geographic != ortho.geographic or (
             dem.crs is not None and ortho.crs is not None and dem.crs != ortho.crs):
@@ -212,7 +270,7 @@ def terrain_from_geotiff(ortho_path: str | Path, dem_path: str | Path | None,
                            "them (gdal_fillnodata.py)")
     z = ndimage.map_coordinates(dem.data, [rr, cc], order=1, mode="nearest")
     return (Terrain(albedo, texel_m, z.astype(np.float32), spacing),
-            (lat0, lon0) if ortho.geographic else None)
+            None if lat0 is None else (lat0, lon0))
 
 
 def write_geotiff(path: str | Path, data: np.ndarray, x0: float, y0: float, dx: float,

@@ -15,6 +15,34 @@ from typing import Literal
 
 import numpy as np
 
+
+def poisson_draw(mean: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Poisson counts (float64) of ``mean`` (>= 0), one uniform draw per pixel.
+
+    ``rng.poisson`` rejects a variable number of candidates per pixel, so a change of one
+    ulp in one pixel's mean (Dr.Jit's parallel film accumulation is reproducible only to an
+    ulp) could shift the generator for every later pixel. Here each pixel's count is the exact
+    quantile of its own uniform u: the smallest k with P(X <= k) >= u, found from the
+    skew-corrected normal quantile lam + sqrt(lam) z + (z^2 - 1) / 6 by unit steps (rarely
+    more than one).
+    """
+    from scipy.special import ndtri, pdtr
+
+    lam = np.asarray(mean, dtype=np.float64)
+    u = rng.random(lam.shape)
+    z = ndtri(np.clip(u, 1e-300, 1.0 - 1e-16))
+    k = np.maximum(np.floor(lam + np.sqrt(lam) * z + (z * z - 1.0) / 6.0 + 0.5), 0.0)
+    todo = np.flatnonzero(np.ones(lam.shape, bool))
+    kf, lf, uf = k.reshape(-1), lam.reshape(-1), u.reshape(-1)
+    while len(todo):
+        kt, lt, ut = kf[todo], lf[todo], uf[todo]
+        down = (kt > 0) & (pdtr(kt - 1, lt) >= ut)
+        up = ~down & (pdtr(kt, lt) < ut)
+        kf[todo] = kt - down + up
+        todo = todo[down | up]
+    return k
+
+
 H_PLANCK = 6.62607015e-34
 C_LIGHT = 299792458.0
 
@@ -109,7 +137,7 @@ class SensorModel:
         e = np.asarray(signal_e, dtype=np.float64)
         if self.noise_model == "physical":
             mean = np.clip(e, 0.0, None) + self.dark_current_e_per_s * exposure_s
-            e = rng.poisson(mean).astype(np.float64)
+            e = poisson_draw(mean, rng)
             if self.read_noise_e > 0:
                 e = e + rng.normal(0.0, self.read_noise_e, size=e.shape)
         e = np.clip(e, 0.0, self.full_well_e)

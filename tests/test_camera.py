@@ -180,3 +180,21 @@ def test_predicted_velocity_equals_finite_differences_of_the_projection():
               - cam.image_motion_px(g, np.array([0.4 - dt]), 0.4))[0] / (2 * dt)
         # ~8,000 px/s; central differences are good to ~1e-3 px/s at this step
         assert np.abs(v - fd).max() < 5e-3
+
+
+def test_poisson_draw_is_exact_and_local():
+    """Counts are the exact Poisson quantiles of one uniform per pixel (scipy's ppf), and a
+    one-ulp change of one pixel's mean cannot shift the draws of the other pixels."""
+    from scipy import stats
+
+    from camera.sensor import poisson_draw
+
+    lam = np.random.default_rng(0).uniform(0.0, 3e4, 4000)
+    lam[:500] = np.random.default_rng(1).uniform(0.0, 30.0, 500)
+    got = poisson_draw(lam, np.random.default_rng(5))
+    u = np.random.default_rng(5).random(lam.shape)
+    assert np.array_equal(got, stats.poisson.ppf(u, lam))
+    bumped = lam.copy()
+    bumped[7] = np.nextafter(bumped[7], np.inf)
+    again = poisson_draw(bumped, np.random.default_rng(5))
+    assert np.array_equal(np.delete(again, 7), np.delete(got, 7))

@@ -97,4 +97,26 @@ def test_resumed_run_equals_uninterrupted_run(tmp_path):
     del models
     resumed, info = run_scenario(sc, part, rerun=False)
     assert info["resumed_from_frame"] == 10
-    assert resumed == full
+    # Dr.Jit's multi-threaded film accumulation is reproducible to one ulp only (~270 pixels
+    # of a 128^2 frame differ by 6e-8 between identical renders); now and then a frame ends
+    # up with one pixel a few DN apart (seen: 7 DN at 1 pixel of 16384), which moves a block's
+    # shift by ~0.0015 px and the stage after it by ~2e-4 px. A resumed run must match to a
+    # tenth of the tracker's noise (0.002 px, or 0.2 % for ratios).
+    _assert_same(resumed, full, tol=2e-3)
+
+
+def _assert_same(a, b, tol: float, path: str = "metrics") -> None:
+    """Equal structure, equal non-numbers, numbers within ``tol`` (absolute, and relative for
+    large ones)."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and a.keys() == b.keys(), path
+        for k in a:
+            _assert_same(a[k], b[k], tol, f"{path}.{k}")
+    elif isinstance(a, (list, tuple)):
+        assert isinstance(b, (list, tuple)) and len(a) == len(b), path
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            _assert_same(x, y, tol, f"{path}[{i}]")
+    elif isinstance(a, float) and not isinstance(a, bool):
+        assert b == pytest.approx(a, rel=tol, abs=tol, nan_ok=True), path
+    else:
+        assert a == b, path

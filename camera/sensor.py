@@ -32,7 +32,7 @@ def poisson_draw(mean: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     u = rng.random(lam.shape)
     z = ndtri(np.clip(u, 1e-300, 1.0 - 1e-16))
     k = np.maximum(np.floor(lam + np.sqrt(lam) * z + (z * z - 1.0) / 6.0 + 0.5), 0.0)
-    todo = np.flatnonzero(np.ones(lam.shape, bool))
+    todo = np.arange(lam.size)
     kf, lf, uf = k.reshape(-1), lam.reshape(-1), u.reshape(-1)
     while len(todo):
         kt, lt, ut = kf[todo], lf[todo], uf[todo]

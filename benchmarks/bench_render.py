@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imc.pipeline import build_models
+from imc.build import build_models
 from imc.scenario import load_scenario
 from scene.kernel import Renderer, Sun, load_mitsuba
 from scene.pinhole import ray_keyframes

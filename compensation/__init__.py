@@ -1,6 +1,26 @@
-"""Closing the loop: controller + focal-plane actuator, and residual-blur metrics."""
+"""The compensation loop: blocks behind protocols, the loop that steps them, the analytic
+loop model, and the residual-blur metrics. Pure numpy; imports no other imcsim package."""
 
-from compensation.controller import FirstOrderLoop
+from compensation.analytic import LoopModel, Margins, design_lines, measured_rejection
+from compensation.blocks import (
+    Actuator,
+    BlockMeasurements,
+    ControlInput,
+    Controller,
+    Estimator,
+    MotionEstimate,
+    Plant,
+    Transport,
+    build,
+    kinds,
+    register,
+)
+from compensation.loop import Chunk, LoopRecord, LoopResult, Timeline, Trajectory, simulate
 from compensation.metrics import ResidualMetrics, motion_mtf, residual_metrics
 
-__all__ = ["FirstOrderLoop", "ResidualMetrics", "motion_mtf", "residual_metrics"]
+__all__ = [
+    "Actuator", "BlockMeasurements", "Chunk", "ControlInput", "Controller", "Estimator",
+    "LoopModel", "LoopRecord", "LoopResult", "Margins", "MotionEstimate", "Plant",
+    "ResidualMetrics", "Timeline", "Trajectory", "Transport", "build", "design_lines", "kinds",
+    "measured_rejection", "motion_mtf", "register", "residual_metrics", "simulate",
+]

@@ -45,15 +45,26 @@ def info() -> None:
 
 @app.command()
 def validate(scenario: Path = typer.Argument(..., help="scenario YAML")) -> None:
-    """Check a scenario file and its geometry without rendering."""
-    from imc.pipeline import build_models
+    """Check a scenario file, its geometry and its loop design without rendering."""
+    from imc.build import build_loop, build_models
 
     try:
         sc = load_scenario(scenario)
-        build_models(sc)
+        parts = build_loop(build_models(sc))
     except ScenarioError as e:
         _fail(str(e))
-    out.print(f"{scenario}: ok ({sc.n_frames} frames, {sc.correlator.n_blocks} blocks)")
+    mg = parts.margins
+    out.print(f"{scenario}: ok ({sc.n_frames} frames, {sc.correlator.n_blocks} blocks; "
+              f"loop {sc.compensation.controller.kind}: {_margins_text(mg)})")
+
+
+def _margins_text(mg) -> str:
+    def num(v, unit):
+        return "inf" if v is None or not float("-inf") < v < float("inf") else f"{v:.1f}{unit}"
+
+    return (f"gain margin {num(mg.gain_margin_db, ' dB')}, phase margin "
+            f"{num(mg.phase_margin_deg, ' deg')}, peak |S| {mg.peak_rejection:.2f} at "
+            f"{mg.peak_hz:.1f} Hz")
 
 
 def _table(metrics: dict) -> Table:
@@ -103,7 +114,9 @@ def run(
             task = prog.add_task(f"{sc.name}: frames", total=sc.n_frames)
             metrics, run_info = run_scenario(
                 sc, out_dir, save_frames=save_frames, fresh=fresh, rerun=not no_rerun,
-                progress=lambda done, n: prog.update(task, completed=done))
+                progress=lambda done, n: prog.update(task, completed=done),
+                warn=lambda msg: err.print(f"[yellow]warning:[/] {msg}", highlight=False,
+                                           soft_wrap=True))
     except ScenarioError as e:
         _fail(str(e))
     out.print(_table(metrics))
@@ -112,6 +125,13 @@ def run(
               f"{t['rms_error_px'][0]:.4f} / {t['rms_error_px'][1]:.4f} px "
               f"(CRLB {t['median_crlb_px'][0]:.4f} / {t['median_crlb_px'][1]:.4f} px)")
     out.print(f"residual RMS reduced {metrics['rms_reduction']:.1f}x by the loop")
+    lp = metrics["loop"]
+    out.print(f"loop: {lp['fidelity']} plant, {lp['estimator']} estimator, {lp['controller']} "
+              f"controller, {lp['actuator']} stage; {lp['measurement_rate_hz']:g} "
+              f"measurements/s, latency {lp['latency_s'] * 1e3:.1f} ms; stage at its stroke "
+              f"{lp['stage_saturation_fraction'] * 100:.1f} % of the time"
+              + (f"; lines {', '.join(f'{f:.2f}' for f in lp['lines_hz'])} Hz"
+                 if lp["lines_hz"] else ""))
     if "correlator_device" in metrics:
         d = metrics["correlator_device"]
         out.print(f"correlator device: {d['correlations_per_s']:g} correlations/s, latency "
@@ -122,7 +142,8 @@ def run(
         out.print(f"serial link: {lk['records']} records, {lk['lost']} lost, "
                   f"{lk['crc_errors']} CRC errors, {lk['reconnects']} reconnects")
     resumed = run_info["resumed_from_frame"]
-    out.print(f"wall time {run_info['wall_s']:.1f} s (rendering {run_info['render_s']:.1f} s)"
+    out.print(f"wall time {run_info['wall_s']:.1f} s (rendering {run_info['render_s']:.1f} s; "
+              f"checkpoint {run_info['checkpoint_bytes'] / 1e6:.1f} MB)"
               + (f", resumed at frame {resumed}" if resumed else ""))
     out.print("wrote " + ", ".join(run_info["files"]))
 
@@ -157,8 +178,11 @@ def device_emulator(
 
     import numpy as np
 
+    from compensation.loop import simulate
     from correlator.driver import PtyDevice, motion_records
-    from imc.pipeline import build_models, run_loop
+    from imc import streams
+    from imc.build import build_loop, build_models
+    from imc.plants import RenderedPlant
 
     try:
         sc = load_scenario(scenario)
@@ -172,11 +196,13 @@ def device_emulator(
         m = build_models(sc)
     except ScenarioError as e:
         _fail(str(e))
-    with PtyDevice(link, np.random.default_rng([sc.seed, 5]), corrupt_probability=corrupt,
+    with PtyDevice(link, streams.rng(sc.seed, "device_emulator"), corrupt_probability=corrupt,
                    drop_probability=drop) as dev:
         out.print(f"device on {link} -> {link.resolve()} ({m.timing.correlations_per_s:g} "
                   f"correlations/s); rendering and correlating {sc.n_frames} frames ...")
-        st = run_loop(m)
+        parts = build_loop(m)
+        rec = simulate(RenderedPlant(m), parts.estimator, parts.controller, parts.actuator,
+                       parts.transport, parts.timeline, enabled=False).record
         sched = m.schedule
         kk, bb = np.nonzero(sched.done)
         order = np.argsort(sched.deliver_s[kk, bb], kind="stable")
@@ -186,8 +212,8 @@ def device_emulator(
             t_dev = float(sched.deliver_s[k, b])
             if speed > 0:
                 time.sleep(max(0.0, t0 + t_dev / speed - time.monotonic()))
-            dev.send(motion_records(k, np.array([1e6 * t_dev]), st.shifts[k, b][None],
-                                    st.valid[k, b][None], st.peaks[k, b][None], [b]))
+            dev.send(motion_records(k, np.array([1e6 * t_dev]), rec.shift_px[k, b][None],
+                                    rec.valid[k, b][None], rec.peak[k, b][None], [b]))
         end = time.monotonic() + linger_s
         while time.monotonic() < end:
             dev.heartbeat()
@@ -226,6 +252,35 @@ def device_read(
     out.print(f"{s.records} records, {len(s.lost)} lost, {s.crc_errors} CRC errors, "
               f"{s.garbage_bytes} garbage bytes, {s.duplicates} duplicates, "
               f"{s.reconnects} reconnects")
+
+
+@app.command(name="loop")
+def loop_cmd(
+    scenario: Path = typer.Argument(..., help="scenario YAML (its loop: rates, latency, "
+                                    "controller, actuator)"),
+    out_dir: Path = typer.Option(Path("runs/loop"), "--out", help="folder for loop.png and "
+                                 "loop.json"),
+    points: int = typer.Option(12, min=2, max=200, help="sine-sweep frequencies"),
+    amplitude_px: float = typer.Option(0.1, min=1e-4, max=10.0,
+                                       help="sine-sweep amplitude, px"),
+) -> None:
+    """Plot the loop's rejection |S(f)| (analytic model) beside a sine sweep of the same
+    loop on the analytic plant, with the delay bound; write loop.png and loop.json."""
+    from imc.build import build_loop, build_models
+    from imc.loopplot import loop_study
+
+    try:
+        sc = load_scenario(scenario)
+        parts = build_loop(build_models(sc))
+    except ScenarioError as e:
+        _fail(str(e))
+    res = loop_study(parts.model, out_dir, n_sweep=points, amplitude_px=amplitude_px,
+                     title=sc.name)
+    mg = parts.margins
+    out.print(f"{sc.name}: {_margins_text(mg)}; 0 dB crossover {mg.crossover_hz:.1f} Hz")
+    out.print(f"sine sweep vs analytic |S|: largest difference {res['max_error_db']:.2f} dB "
+              f"up to {res['f_max_compared_hz']:.1f} Hz (a quarter of the measurement rate)")
+    out.print(f"wrote {res['png']} and {res['json']}")
 
 
 bench_app = typer.Typer(add_completion=False, no_args_is_help=True,

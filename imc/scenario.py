@@ -11,7 +11,7 @@ import dataclasses
 import hashlib
 from datetime import datetime
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 import yaml
@@ -318,6 +318,9 @@ class MainImagerConfig(_Model):
                                        "(default: synchronous with the predicted image motion)")
     clock_phases: int = Field(0, ge=0, le=8, description="tdi: charge steps per line "
                               "(0: continuous transfer)")
+    start_s: float = Field(0.0, ge=0.0, description="when the main imager starts exposing, "
+                           "s; the compensation loop acquires lock before (the metrics cover "
+                           "the imager's exposures from start_s on)")
 
 
 class CameraConfig(_Model):
@@ -460,11 +463,154 @@ class CorrelatorConfig(_Model):
         return PipelineTiming(**t.model_dump(exclude={"enabled"}))
 
 
+def check_params(role: str, kind: str, params: dict) -> None:
+    """Validate a block's parameters against its class (pydantic on the dataclass); a
+    ValueError '@field@ message' names the offending parameter."""
+    from pydantic import TypeAdapter
+
+    from compensation.blocks import block_class, kinds
+
+    try:
+        cls = block_class(role, kind)
+    except ValueError:
+        raise ValueError(f"@kind@ unknown {role} kind {kind!r}; choose one of "
+                         f"{', '.join(kinds(role))}") from None
+    wired = getattr(cls, "WIRED", ())
+    names = {f.name for f in dataclasses.fields(cls) if f.init}
+    for key in params:
+        if key in wired:
+            raise ValueError(f"@{key}@ is set by imcsim from the rest of the scenario; "
+                             "leave it out")
+        if key not in names:
+            allowed = ", ".join(sorted(names - set(wired)))
+            raise ValueError(f"@{key}@ unknown parameter of {role} kind {kind!r} "
+                             f"(allowed: {allowed})")
+    try:
+        TypeAdapter(cls).validate_python(dict(params))
+    except ValidationError as e:
+        err = e.errors()[0]
+        msg = err["msg"].removeprefix("Value error, ")
+        first = msg.split(" ", 1)[0]
+        name = ".".join(str(p) for p in err["loc"]) or (first if first in names else "kind")
+        raise ValueError(f"@{name}@ {msg}") from None
+
+
+class BlockConfig(_Model):
+    """A loop block picked by ``kind`` from the registry (compensation.blocks); every other
+    key is a parameter of that kind (see the kinds' tables below), checked here."""
+
+    model_config = ConfigDict(extra="allow", frozen=True)
+    ROLE: ClassVar[str] = ""
+    #: schema-level options of a section that are not parameters of the block class
+    OPTIONS: ClassVar[tuple[str, ...]] = ()
+
+    kind: str = Field(description="the block's kind")
+
+    @model_validator(mode="after")
+    def _params(self):
+        check_params(self.ROLE, self.kind, self.params())
+        return self
+
+    def params(self) -> dict:
+        """The block's parameters as written (schema-level options left out)."""
+        return {k: v for k, v in (self.model_extra or {}).items() if k not in self.OPTIONS}
+
+    def option(self, name: str, default=None):
+        return (self.model_extra or {}).get(name, default)
+
+
+class ControllerConfig(BlockConfig):
+    """The control law: integrator (today's first-order loop), pi, pii (type 2) with
+    optional resonant ``lines`` and a ``notch``, or kalman (model-based predictor).
+    ``feedforward: true`` (kalman) adds the orbit/attitude prediction as feed-forward."""
+
+    ROLE: ClassVar[str] = "controller"
+    OPTIONS: ClassVar[tuple[str, ...]] = ("feedforward",)
+    kind: str = Field("integrator", description="integrator, pi, pii or kalman")
+
+    @model_validator(mode="after")
+    def _feedforward(self):
+        ff = self.option("feedforward")
+        if ff is not None and (self.kind != "kalman" or not isinstance(ff, bool)):
+            raise ValueError("@feedforward@ is a true/false option of kind 'kalman'")
+        return self
+
+
+class ActuatorConfig(BlockConfig):
+    """The focal-plane stage: ideal (zero-order hold) or piezo (second-order mode, stroke,
+    slew, Bouc-Wen hysteresis, creep, DAC)."""
+
+    ROLE: ClassVar[str] = "actuator"
+    kind: str = Field("ideal", description="ideal or piezo")
+
+
+class EstimatorConfig(BlockConfig):
+    """How the blocks' shifts become one motion at the main imager: motion_field (weighted
+    fit, outliers rejected, re-referencing) or mean (today's)."""
+
+    ROLE: ClassVar[str] = "estimator"
+    kind: str = Field("motion_field", description="motion_field or mean")
+
+
+class TransportConfig(_Model):
+    """Latency and losses between the tracker and the controller (the correlator device's
+    own pipeline comes from correlator.timing)."""
+
+    latency_s: float = Field(0.0, ge=0.0, le=10.0, description="extra latency after the "
+                             "exposure ends (read-out, computing), s")
+    latency_frames: int = Field(0, ge=0, le=100, description="extra latency in tracker "
+                                "frames (added to latency_s)")
+    drop_probability: float = Field(0.0, ge=0.0, lt=1.0, description="chance a frame's "
+                                    "measurement is lost")
+
+
 class CompensationConfig(_Model):
+    """The loop: blocks picked by kind, the transport, and the stability a design must have.
+    ``gain`` and ``latency_frames`` of earlier versions are still read (as
+    controller.gain and transport.latency_frames)."""
+
     enabled: bool = Field(True, description="close the loop (false: open loop)")
-    gain: float = Field(0.8, gt=0.0, le=2.0, description="first-order loop gain per frame")
-    latency_frames: int = Field(0, ge=0, le=100,
-                                description="extra frames before a measurement acts")
+    controller: ControllerConfig = ControllerConfig(kind="integrator", gain=0.8)
+    actuator: ActuatorConfig = ActuatorConfig(kind="ideal")
+    estimator: EstimatorConfig = EstimatorConfig(kind="motion_field")
+    transport: TransportConfig = TransportConfig()
+    min_phase_margin_deg: float = Field(20.0, ge=0.0, le=90.0, description="a design with "
+                                        "less phase margin is refused, deg")
+    min_modulus_margin: float = Field(0.25, ge=0.0, le=1.0, description="a design whose "
+                                      "loop comes closer to -1 (least |1 + L|) is refused")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _legacy(cls, data):
+        if not isinstance(data, dict):
+            return data
+        data = dict(data)
+        if "gain" in data:
+            if "controller" in data:
+                raise ValueError("give the loop gain as controller.gain (compensation.gain is "
+                                 "the older spelling), not both")
+            data["controller"] = {"kind": "integrator", "gain": data.pop("gain")}
+        if "latency_frames" in data:
+            tr = dict(data.get("transport") or {})
+            if "latency_frames" in tr:
+                raise ValueError("give transport.latency_frames (compensation.latency_frames "
+                                 "is the older spelling), not both")
+            tr["latency_frames"] = data.pop("latency_frames")
+            data["transport"] = tr
+        return data
+
+
+class PlantConfig(_Model):
+    """What stands for the world the tracker looks at: rendered (Mitsuba frames), texture
+    (the scene's albedo warped by the true motion field, numpy; the real correlator) or
+    analytic (no images: measurements = truth + noise of the correlator's predicted sigma).
+    The loop is the same for all three."""
+
+    fidelity: Literal["rendered", "texture", "analytic"] = Field(
+        "rendered", description="rendered, texture or analytic")
+    sigma_px: float | None = Field(None, gt=0.0, description="analytic: 1-sigma noise of "
+                                   "each block's shift, px (default: the correlator's "
+                                   "predicted error on the scene's texture)")
 
 
 class MetricsConfig(_Model):
@@ -482,6 +628,7 @@ class Scenario(_Model):
     camera: CameraConfig = CameraConfig()
     correlator: CorrelatorConfig = CorrelatorConfig()
     compensation: CompensationConfig = CompensationConfig()
+    plant: PlantConfig = PlantConfig()
     metrics: MetricsConfig = MetricsConfig()
 
     @field_validator("name")
@@ -506,6 +653,8 @@ class Scenario(_Model):
                 f"({t.rows} x {t.cols})")
         if self.n_frames < 2:
             raise ValueError("duration_s covers fewer than 2 tracker frames; raise it")
+        if self.camera.main_imager.start_s >= self.duration_s:
+            raise ValueError("camera.main_imager.start_s must lie within duration_s")
         return self
 
     @property
@@ -540,6 +689,9 @@ def _format_validation_error(err: ValidationError, source: str) -> str:
     first = errors[0]
     loc = ".".join(str(p) for p in first["loc"]) or "(top level)"
     msg = first["msg"].removeprefix("Value error, ")
+    if msg.startswith("@") and "@" in msg[1:]:  # a block parameter names its own field
+        name, msg = msg[1:].split("@", 1)
+        loc, msg = f"{loc}.{name}", msg.strip()
     if first["type"] == "extra_forbidden":
         msg = "unknown field (check the spelling; see docs/scenario.md)"
     got = ""

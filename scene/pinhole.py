@@ -25,12 +25,16 @@ KEYFRAME_FLOATS = 21
 def ray_keyframes(
     poses: Pose, focal_plane: FocalPlane, offset_px, z_start_m: float
 ) -> np.ndarray:
-    """Packed float64 keyframes (K, 21) for poses (K,) with a stage offset (row, col) px."""
+    """Packed float64 keyframes (K, 21) for poses (K,) with a stage offset (row, col) px:
+    one (2,) for all keyframes, or (K, 2), one per keyframe (the stage moving)."""
     rows, cols = focal_plane.rows, focal_plane.cols
     pp = focal_plane.principal_point_px
-    a_col = cols / 2.0 - 0.5 + offset_px[1] - pp[1]
-    a_row = rows / 2.0 - 0.5 + offset_px[0] - pp[0]
-    m = np.array([[cols, 0.0, a_col], [0.0, rows, a_row], [0.0, 0.0, focal_plane.f_px]])
+    off = np.broadcast_to(np.asarray(offset_px, dtype=np.float64),
+                          (len(poses.position_m), 2))
+    m = np.zeros((len(off), 3, 3))
+    m[:, 0, 0], m[:, 1, 1], m[:, 2, 2] = cols, rows, focal_plane.f_px
+    m[:, 0, 2] = cols / 2.0 - 0.5 + off[:, 1] - pp[1]
+    m[:, 1, 2] = rows / 2.0 - 0.5 + off[:, 0] - pp[0]
     a = poses.enu_from_cam @ m  # (K, 3, 3): world direction = A q
     c = poses.position_m  # (K, 3)
     if np.any(c[:, 2] <= z_start_m):

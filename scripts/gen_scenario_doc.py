@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import typing
 from pathlib import Path
@@ -11,7 +12,7 @@ from pydantic import BaseModel
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from imc.scenario import Scenario, _Model  # noqa: E402
+from imc.scenario import BlockConfig, Scenario, _Model  # noqa: E402
 
 HEADER = """# Scenario reference
 
@@ -65,8 +66,43 @@ def sections(model: type[BaseModel], prefix: str, out: list[str], title: str) ->
     out.append("| field | default | meaning |\n|---|---|---|")
     out.extend(rows)
     out.append("")
+    if issubclass(model, BlockConfig):
+        block_kinds(model, prefix, out)
     for sub, p, t in nested:
         sections(sub, p, out, t)
+
+
+def _value(v) -> str:
+    if v is dataclasses.MISSING:
+        return "(required)"
+    if v is None:
+        return "none (see text)"
+    return repr(v) if isinstance(v, str) else str(v)
+
+
+def block_kinds(model: type[BlockConfig], prefix: str, out: list[str]) -> None:
+    """The kinds registered for a block role and their parameters (from the classes)."""
+    from compensation.blocks import block_class, kinds
+
+    for kind in kinds(model.ROLE):
+        cls = block_class(model.ROLE, kind)
+        wired = set(getattr(cls, "WIRED", ()))
+        doc = " ".join((cls.__doc__ or "").split())
+        out.append(f"### `{prefix}kind: {kind}`\n")
+        out.append(doc + "\n")
+        rows = []
+        for f in dataclasses.fields(cls):
+            if not f.init or f.name in wired or callable(f.default) and f.name == "nominal_px":
+                continue
+            default = f.default if f.default_factory is dataclasses.MISSING else f.default_factory()
+            rows.append(f"| `{prefix}{f.name}` | {_value(default)} |")
+        if rows:
+            out.append("| parameter | default |\n|---|---|")
+            out.extend(rows)
+        for opt in model.OPTIONS:
+            if opt == "feedforward" and kind == "kalman":
+                out.append(f"| `{prefix}feedforward` | False |")
+        out.append("")
 
 
 def render() -> str:

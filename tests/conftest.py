@@ -24,7 +24,7 @@ def quickstart():
 @pytest.fixture(scope="session")
 def camera_model(quickstart):
     """The quickstart camera model (target staring, 2 Hz pitch jitter)."""
-    from imc.pipeline import build_models
+    from imc.build import build_models
 
     return build_models(quickstart).camera
 

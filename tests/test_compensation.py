@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from scipy.special import j0
 
-from compensation import FirstOrderLoop, motion_mtf, residual_metrics
+from compensation import motion_mtf, residual_metrics
 
 
 def test_motion_mtf_of_linear_smear_is_sinc():
@@ -28,27 +28,3 @@ def test_residual_metrics_of_a_sinusoid():
     assert m.peak_to_peak_px[0] == pytest.approx(2.0, rel=1e-3)
     assert m.mtf_nyquist[1] == pytest.approx(1.0)  # a constant offset does not blur
     assert m.window_s == pytest.approx(0.5)
-
-
-def test_first_order_loop_converges_and_holds_on_invalid():
-    loop = FirstOrderLoop(gain=0.5, latency_frames=0)
-    s = loop.commands(40)
-    target = np.array([1.0, -2.0])
-    for k in range(30):
-        loop.update(s, k, target, valid=True)
-    assert np.allclose(s[30], target, atol=1e-6)
-    before = s[31].copy()
-    loop.update(s, 31, np.array([50.0, 50.0]), valid=False)
-    assert np.allclose(s[32], before)
-
-
-def test_latency_delays_the_command():
-    loop = FirstOrderLoop(gain=1.0, latency_frames=2)
-    s = loop.commands(10)
-    loop.update(s, 0, np.array([1.0, 0.0]), valid=True)
-    assert np.allclose(s[:3], 0.0) and np.allclose(s[3:], [1.0, 0.0])
-
-
-def test_unstable_gain_is_rejected():
-    with pytest.raises(ValueError, match="gain"):
-        FirstOrderLoop(gain=2.5)

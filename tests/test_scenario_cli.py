@@ -74,7 +74,7 @@ def test_new_sections_name_the_field_and_the_fix(data, words):
 
 
 def test_bad_tle_is_a_scenario_error():
-    from imc.pipeline import build_models
+    from imc.build import build_models
     from imc.scenario import ScenarioError, parse_scenario
 
     sc = parse_scenario({"orbit": {"kind": "tle", "tle_line1": "1 25544U garbage",
@@ -162,7 +162,7 @@ def test_scenario_reference_is_current():
 
 
 def test_scene_kinds_sun_and_clouds_from_the_scenario():
-    from imc.pipeline import build_scene
+    from imc.build import build_scene
 
     auto = parse_scenario(_quickstart_with(**{"scene.sun_elevation_deg": None,
                                              "scene.sun_azimuth_deg": None}))

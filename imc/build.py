@@ -1,0 +1,459 @@
+"""Build a run's models from a scenario: orbit, attitude, scene, camera, correlator options,
+and the compensation loop's blocks (picked by kind from compensation's registry).
+
+Nothing is rendered here; :func:`build_models` is what ``imc validate`` runs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from camera.geometry import FocalPlane
+from camera.imager import FrameImager, MainImager, TdiImager, synchronous_line_rate_hz
+from camera.motion import CameraModel
+from camera.optics import Optics
+from camera.sensor import Radiometry, SensorModel
+from correlator.core import CorrelatorOptions
+from correlator.optical import OpticalJtc
+from correlator.timing import PipelineTiming, Schedule
+from correlator.tracker import BlockTracker, block_grid
+from imc import streams
+from imc.scenario import CloudsConfig, Scenario, ScenarioError
+from orbit.attitude import Attitude, orbit_looking_at
+from orbit.frames import LocalFrame
+from orbit.jitter import JitterTerm, RandomJitter, WheelJitter, realize_jitter
+from orbit.kepler import EarthOrbit, Orbit
+from orbit.sun import sun_elevation_azimuth_deg
+from orbit.tle import TleOrbit
+from scene.classes import CloudLayer, cloud_layer, scene_class
+from scene.geotiff import GeoTiffError, terrain_from_geotiff
+from scene.terrain import Terrain
+
+KEYFRAMES_PER_EXPOSURE = 5
+CHECKPOINT_EVERY = 10
+
+
+@dataclass(frozen=True)
+class Models:
+    """Everything a run needs, built from a Scenario (no rendering yet)."""
+
+    scenario: Scenario
+    camera: CameraModel  # the tracker sensor's view
+    main_camera: CameraModel  # the main imager's view (same orbit and attitude)
+    imager: MainImager
+    line_rate_hz: float | None
+    main_velocity_px_s: np.ndarray  # predicted (nominal) image velocity at the imager centre
+    terrain: Terrain
+    clouds: CloudLayer | None
+    sun_deg: tuple[float, float]  # (elevation, azimuth from north to east)
+    optics: Optics
+    radiometry: Radiometry
+    sensor: SensorModel
+    correlator: CorrelatorOptions
+    corners: np.ndarray
+    frame_t_s: np.ndarray
+    exposure_s: float
+    chain: bool
+    timing: PipelineTiming | None = None  # the correlator device's pipeline, if modelled
+    schedule: Schedule | None = None  # which (frame, block) pairs it correlates, and when
+
+    @property
+    def frame_mid_s(self) -> np.ndarray:
+        return self.frame_t_s + 0.5 * self.exposure_s
+
+    @property
+    def rate_hz(self) -> float:
+        return float(self.scenario.camera.tracker.frame_rate_hz)
+
+    @property
+    def field_point_px(self) -> tuple[float, float]:
+        """The main imager's centre in tracker pixels (row, col)."""
+        pp = self.camera.focal_plane.principal_point_px
+        off = self.scenario.camera.main_imager.center_offset_px
+        return (float(pp[0] + off[0]), float(pp[1] + off[1]))
+
+    def charge_px(self, t_s: np.ndarray) -> np.ndarray:
+        """Motion (..., 2) the main imager follows by itself since t = 0: TDI charge transfer
+        along rows (continuous: the stage follows the mean charge motion), zero for a frame
+        imager."""
+        t = np.asarray(t_s, dtype=np.float64)
+        if self.line_rate_hz is None:
+            return np.zeros(t.shape + (2,))
+        return np.stack([t * self.line_rate_hz, np.zeros_like(t)], axis=-1)
+
+
+def build_orbit(sc: Scenario) -> EarthOrbit:
+    """The scenario's orbit; circular and sun-synchronous ones placed to see the scene at t = 0."""
+    o, a = sc.orbit, sc.attitude
+    try:
+        if o.kind == "tle":
+            return TleOrbit(o.tle_line1, o.tle_line2, sc.epoch)
+        if o.kind == "elements":
+            return Orbit(o.semi_major_axis_m, o.eccentricity, o.inclination_deg, o.raan_deg,
+                         o.arg_perigee_deg, o.mean_anomaly_deg, sc.epoch, o.j2)
+    except ValueError as e:
+        raise ScenarioError(f"orbit: {e}") from None
+    if o.kind == "sun_synchronous":
+        from orbit.kepler import sun_synchronous_inclination_deg
+
+        inc = sun_synchronous_inclination_deg(o.altitude_m)
+    else:
+        inc = o.inclination_deg
+    # a staring camera sees the scene centre at t = 0; a scanning one half-way through the run,
+    # so the tile is used symmetrically
+    t_mid = 0.0 if a.mode == "target" else 0.5 * sc.duration_s
+    try:
+        orbit = orbit_looking_at(sc.scene.center_lat_deg, sc.scene.center_lon_deg,
+                                 o.altitude_m, inc,
+                                 sc.epoch + np.timedelta64(int(round(t_mid * 1e9)), "ns"),
+                                 o.pass_direction == "descending", a.roll_deg, a.pitch_deg, o.j2)
+        back = np.rad2deg([orbit.raan_rate_rad_s, orbit.arg_perigee_rate_rad_s,
+                           orbit.mean_anomaly_rate_rad_s]) * t_mid
+        return dataclasses.replace(orbit, epoch_utc=sc.epoch,
+                                   raan_deg=orbit.raan_deg - back[0],
+                                   arg_perigee_deg=orbit.arg_perigee_deg - back[1],
+                                   mean_anomaly_deg=orbit.mean_anomaly_deg - back[2])
+    except ValueError as e:
+        raise ScenarioError(f"scene.center_lat_deg: {e}; lower it, raise orbit.inclination_deg "
+                            "or change attitude.roll_deg / pitch_deg") from None
+
+
+def build_jitter(sc: Scenario, ifov_rad: float):
+    """The jitter realisation of this scenario (stream 'jitter')."""
+    j = sc.attitude.jitter
+
+    def rad(urad, px):
+        return urad * 1e-6 if urad is not None else px * ifov_rad
+
+    terms: list = [JitterTerm(s.axis, s.frequency_hz, rad(s.amplitude_urad, s.amplitude_px),
+                              np.deg2rad(s.phase_deg)) for s in j.sinusoids]
+    terms += [RandomJitter(r.axis, rad(r.rms_urad, r.rms_px), r.f_min_hz, r.f_max_hz, r.slope)
+              for r in j.random]
+    terms += [WheelJitter(w.axis, w.speed_hz,
+                          tuple((h.number, rad(h.amplitude_urad, h.amplitude_px))
+                                for h in w.harmonics), w.speed_rate_hz_per_s)
+              for w in j.wheels]
+    return realize_jitter(terms, sc.duration_s, streams.rng(sc.seed, "jitter"))
+
+
+#: clouds whose layer would need more cells than this per side get coarser cells
+MAX_CLOUD_CELLS = 4096
+
+
+def build_scene(sc: Scenario) -> tuple[Terrain, CloudLayer | None, tuple[float, float],
+                                       tuple[float, float]]:
+    """Terrain, cloud layer, centre (lat, lon) deg and sun (elevation, azimuth) deg."""
+    s = sc.scene
+    centre = (s.center_lat_deg, s.center_lon_deg)
+    if s.kind == "geotiff":
+        g = s.geotiff
+        try:
+            terrain, file_centre = terrain_from_geotiff(g.ortho, g.dem, s.dem_spacing_m,
+                                                        g.albedo_scale)
+        except GeoTiffError as e:
+            raise ScenarioError(str(e)) from None
+        centre = file_centre or centre
+    if s.sun_elevation_deg is not None:
+        sun = (float(s.sun_elevation_deg), float(s.sun_azimuth_deg))
+    else:
+        el, az = sun_elevation_azimuth_deg(centre[0], centre[1], sc.epoch, 0.0)
+        if el < 5.0:
+            raise ScenarioError(
+                f"scene: the sun is {float(el):.1f} deg above the horizon at orbit.epoch_utc "
+                f"{sc.orbit.epoch_utc} at ({centre[0]}, {centre[1]}); choose a daytime epoch "
+                "or set scene.sun_elevation_deg and sun_azimuth_deg")
+        sun = (float(el), float(az))
+    if s.kind != "geotiff":
+        terrain = scene_class(s.kind, s.size_m, s.texel_m, s.dem_spacing_m,
+                              streams.rng(sc.seed, "terrain"), s.relief_rms_m,
+                              sun_azimuth_deg=sun[1])
+    cfg = s.clouds
+    if cfg is None and s.kind == "mountain":
+        cfg = CloudsConfig()  # the paper's mountain class has snow and clouds
+    clouds = None
+    if cfg is not None and cfg.cover > 0.0:
+        base = float(np.max(terrain.dem_m)) + cfg.base_height_m
+        # wide enough for a 56 deg off-nadir view and a 34 deg sun through the layer
+        extent = max(terrain.size_m) + 3.0 * (base + cfg.thickness_m - float(terrain.dem_m.min()))
+        cell = max(cfg.cell_m, extent / MAX_CLOUD_CELLS)
+        clouds = cloud_layer(extent, cell, cfg.cover, base, streams.rng(sc.seed, "clouds"),
+                             cfg.thickness_m, cfg.albedo)
+    return terrain, clouds, centre, sun
+
+
+def build_models(sc: Scenario) -> Models:
+    """Build orbit, attitude, camera, terrain and loop models; validate the geometry."""
+    terrain, clouds, centre, sun = build_scene(sc)
+    if centre != (sc.scene.center_lat_deg, sc.scene.center_lon_deg):
+        sc = sc.model_copy(update={"scene": sc.scene.model_copy(
+            update={"center_lat_deg": centre[0], "center_lon_deg": centre[1]})})
+    orbit = build_orbit(sc)
+    frame = LocalFrame(sc.scene.center_lat_deg, sc.scene.center_lon_deg, 0.0)
+    c, t = sc.camera, sc.camera.tracker
+    fp = FocalPlane(c.focal_length_m, c.pixel_pitch_m, t.rows, t.cols, t.center_offset_px)
+    a = sc.attitude
+    try:
+        attitude = Attitude(
+            mode=a.mode,
+            roll_deg=a.roll_deg if a.mode == "off_nadir" else 0.0,
+            pitch_deg=a.pitch_deg if a.mode == "off_nadir" else 0.0,
+            target_ecef_m=tuple(frame.origin_ecef_m.tolist()) if a.mode == "target" else None,
+            yaw_steering=a.yaw_steering,
+            jitter=build_jitter(sc, fp.ifov_rad),
+        )
+    except ValueError as e:
+        raise ScenarioError(f"attitude: {e}") from None
+    cam = CameraModel(orbit, attitude, frame, fp)
+    if a.mode == "target":
+        r, _ = orbit.state_ecef(0.0)
+        up = frame.ecef_to_enu(r)
+        if up[2] <= 0 or np.degrees(np.arctan2(np.hypot(up[0], up[1]), up[2])) > 70.0:
+            raise ScenarioError("attitude.mode: the scene is below 20 deg elevation from the "
+                                "satellite at t = 0; change orbit or orbit.epoch_utc")
+    mi = c.main_imager
+    if mi.kind == "tdi":
+        imager: MainImager = TdiImager(
+            stages=mi.stages, line_rate_hz=mi.line_rate_hz, clock_phases=mi.clock_phases,
+            center_offset_px=mi.center_offset_px)
+    else:
+        imager = FrameImager(exposure_s=mi.exposure_s, center_offset_px=mi.center_offset_px)
+    main_cam = dataclasses.replace(cam, focal_plane=imager.focal_plane(c.focal_length_m,
+                                                                      c.pixel_pitch_m))
+    velocity = main_cam.velocity_field_px_s(main_cam.focal_plane.center_px, 0.0,
+                                            terrain.height_at, nominal=True)[0]
+    line_rate = None
+    if mi.kind == "tdi":
+        line_rate = mi.line_rate_hz
+        if line_rate is None:
+            try:
+                line_rate = synchronous_line_rate_hz(velocity)
+            except ValueError as e:
+                raise ScenarioError(f"camera.main_imager: {e}") from None
+    o = c.optics
+    frame_t = np.arange(sc.n_frames) / t.frame_rate_hz
+    corners = block_grid(t.rows, t.cols, sc.correlator.block_px, sc.correlator.n_blocks)
+    models = Models(
+        scenario=sc,
+        camera=cam,
+        main_camera=main_cam,
+        imager=imager,
+        line_rate_hz=line_rate,
+        main_velocity_px_s=velocity,
+        terrain=terrain,
+        clouds=clouds,
+        sun_deg=sun,
+        optics=Optics(c.focal_length_m, o.aperture_m, o.wavelength_m, c.pixel_pitch_m,
+                      o.blur_sigma_px, o.transmission, o.diffraction),
+        radiometry=Radiometry(**c.radiometry.model_dump()),
+        sensor=SensorModel(t.mean_signal_dn, t.noise_sigma_dn, t.adc_bits, t.noise_model,
+                           t.gain_e_per_dn, t.full_well_e, t.read_noise_e,
+                           t.dark_current_e_per_s),
+        correlator=_correlator_options(sc),
+        corners=corners,
+        frame_t_s=frame_t,
+        exposure_s=sc.exposure_s,
+        chain=False,
+        timing=sc.correlator.pipeline_timing(),
+    )
+    if models.timing is not None:  # a frame is ready for the device when it is read out
+        models = dataclasses.replace(models, schedule=models.timing.schedule(
+            frame_t + sc.exposure_s, len(corners)))
+    models = dataclasses.replace(models, chain=_needs_chain(models))
+    _check_coverage(models)
+    return models
+
+
+def _correlator_options(sc: Scenario) -> CorrelatorOptions:
+    """The correlator's options; an optical model that cannot hold the blocks is a
+    ScenarioError naming the field."""
+    c = sc.correlator
+    try:
+        opts = CorrelatorOptions(
+            method=c.method, subpixel=c.subpixel, psr_threshold=c.psr_threshold,
+            max_crlb_px=c.max_crlb_px, rewindow=c.rewindow,
+            optical=c.jtoc_model() if c.method == "optical" else None)
+        if c.method == "optical":
+            OpticalJtc(opts.optical, c.block_px, c.block_px, c.block_px // 4)
+    except ValueError as e:
+        raise ScenarioError(f"correlator: {e}") from None
+    return opts
+
+
+def predicted_px(m: Models, centers_px: np.ndarray, k_ref: int, k: int,
+                 stage_ref_px: np.ndarray, stage_px: np.ndarray) -> np.ndarray:
+    """Nominal (jitter-free) motion (B, 2) of the content at sensor pixels ``centers_px`` in
+    frame k_ref to frame k, with the stage offsets (2,) the two frames were taken with."""
+    fp_px = np.asarray(centers_px, dtype=np.float64) + stage_ref_px
+    ground = m.camera.ground_points(fp_px, float(m.frame_mid_s[k_ref]), m.terrain.height_at)
+    mo = m.camera.image_motion_px(ground, m.frame_mid_s[k:k + 1], float(m.frame_mid_s[k_ref]),
+                                  nominal=True)[0]
+    return mo - (stage_px - stage_ref_px)
+
+
+def _needs_chain(m: Models) -> bool:
+    """True if the predicted motion over the run moves a block off the sensor."""
+    n = len(m.frame_t_s)
+    ks = np.unique(np.linspace(0, n - 1, min(n, 16)).astype(int))
+    centers = BlockTracker.centers_from(m.corners, m.scenario.correlator.block_px)
+    zero = np.zeros(2)
+    fp = m.camera.focal_plane
+    b = m.scenario.correlator.block_px
+    for k in ks:
+        step = np.rint(predicted_px(m, centers, 0, int(k), zero, zero)).astype(int)
+        c = m.corners + step
+        # keep a 4 px margin for jitter and the stage
+        if np.any(c < 4) or np.any(c + b > np.array([fp.rows, fp.cols]) - 4):
+            return True
+    return False
+
+
+def _check_coverage(m: Models) -> None:
+    """The tile must hold every ray of every frame, with margin for the stage and jitter."""
+    fp = m.camera.focal_plane
+    margin = 8.0
+    corners = np.array([[-margin, -margin], [-margin, fp.cols - 1 + margin],
+                        [fp.rows - 1 + margin, -margin],
+                        [fp.rows - 1 + margin, fp.cols - 1 + margin]])
+    times = np.concatenate([m.frame_t_s, m.frame_t_s + m.exposure_s])
+    times = np.unique(np.concatenate([times[:: max(1, len(times) // 64)], times[-1:]]))
+    pts = np.stack([m.camera.ground_points(corners, float(t), m.terrain.height_at)
+                    for t in times])
+    inside = m.terrain.contains(pts[..., 0], pts[..., 1], margin_m=4.0 * m.terrain.dem_spacing_m)
+    if not np.all(inside):
+        need = 2.0 * float(np.max(np.abs(pts[..., :2]))) + 8.0 * m.terrain.dem_spacing_m
+        hint = (f" (attitude.mode '{m.scenario.attitude.mode}' sweeps the ground at ~6.8 km/s:"
+                " use mode 'target' or a shorter duration_s)"
+                if m.scenario.attitude.mode != "target" else "")
+        raise ScenarioError(
+            f"scene.size_m: the {m.scenario.scene.size_m:g} m tile does not cover the ground "
+            f"the tracker sees during the run; it needs >= {need:.0f} m{hint}")
+
+
+def frame_seeds(seed: int, k: int) -> tuple[np.random.Generator, int]:
+    """Noise generator and render seed of frame k (streams 'sensor' and 'render')."""
+    return streams.rng(seed, "sensor", k), streams.render_seed(seed, k)
+
+
+# ---------------------------------------------------------------------------------------------
+# the loop's blocks
+
+
+@dataclass(frozen=True)
+class LoopParts:
+    """The loop's blocks and clock, built from the scenario's compensation section, and the
+    analytic model's verdict on the design."""
+
+    estimator: object
+    controller: object
+    actuator: object
+    transport: object
+    timeline: object
+    model: object  # compensation.analytic.LoopModel (regular-sampling approximation)
+    margins: object  # compensation.analytic.Margins
+
+
+def piezo_update_hz(rate_hz: float, resonance_hz: float) -> float:
+    """The smallest multiple of the frame rate at or above 20 x the resonance."""
+    return rate_hz * max(1, int(np.ceil(20.0 * resonance_hz / rate_hz - 1e-9)))
+
+
+def build_loop(m: Models, channel=None, plant_sigma_px: float | None = None) -> LoopParts:
+    """Estimator, controller, actuator, transport and timeline of a run; the design is
+    checked on the analytic loop model (unstable or marginal: a ScenarioError naming the
+    field and the margin)."""
+    from compensation.analytic import LoopModel, design_lines
+    from compensation.blocks import build
+    from compensation.controllers import FeedbackController
+    from compensation.loop import Timeline
+    from compensation.transport import Transport
+
+    sc = m.scenario
+    comp = sc.compensation
+    n = len(m.frame_t_s)
+    rate = m.rate_hz
+    deliver = processed = None
+    period = 1.0 / rate
+    device_lag = 0.0
+    if m.schedule is not None:
+        deliver = m.schedule.frame_deliver_s()
+        processed = m.schedule.done
+        ok = np.isfinite(deliver)
+        if ok.sum() >= 2:
+            period = float(np.median(np.diff(deliver[ok])))
+            device_lag = float(np.median(deliver[ok] - (m.frame_t_s + m.exposure_s)[ok]))
+    charge = m.charge_px(m.frame_mid_s) - m.charge_px(m.frame_mid_s[:1])
+    end = n / rate
+    timeline = Timeline(m.frame_t_s, m.exposure_s, end, charge, period)
+    latency = comp.transport.latency_s + comp.transport.latency_frames / rate
+    transport = Transport(latency_s=latency, deliver_s=deliver, processed=processed,
+                          drop_probability=comp.transport.drop_probability,
+                          seed=tuple(streams.key(sc.seed, "drops")), channel=channel)
+    try:
+        estimator = build("estimator", comp.estimator.kind, field_point_px=m.field_point_px,
+                          **comp.estimator.params())
+        aparams = comp.actuator.params()
+        if comp.actuator.kind == "piezo" and aparams.get("update_hz") is None:
+            res = aparams.get("resonance_hz", 357.0)
+            aparams["update_hz"] = piezo_update_hz(rate, res)
+        if comp.actuator.kind == "ideal" and aparams.get("ramp"):
+            aparams["ramp_s"] = period
+        actuator = build("actuator", comp.actuator.kind, **aparams)
+        cparams = comp.controller.params()
+        if comp.controller.kind == "kalman":
+            if comp.controller.option("feedforward"):
+                cparams["nominal_px"] = nominal_target(m)
+            if cparams.get("lead_s") is None:
+                cparams["lead_s"] = actuator.lag_s
+        controller = build("controller", comp.controller.kind, rate_hz=1.0 / period,
+                           **cparams)
+    except (TypeError, ValueError) as e:
+        raise ScenarioError(f"compensation: {e}") from None
+    sigma = (plant_sigma_px or getattr(controller, "noise_px", None) or 0.02)
+    model = LoopModel(1.0 / period, m.exposure_s, latency + device_lag, controller, actuator,
+                      float(sigma))
+    if isinstance(controller, FeedbackController) and controller.lines:
+        controller = design_lines(controller, model)
+        model = dataclasses.replace(model, controller=controller)
+    margins = model.margins()
+    if comp.enabled:
+        _check_margins(comp, margins)
+    return LoopParts(estimator, controller, actuator, transport, timeline, model, margins)
+
+
+def _check_margins(comp, mg) -> None:
+    """Refuse an unstable or marginal design, naming the field to change."""
+    knob = {"integrator": "gain", "pi": "kp / ki", "pii": "kp / ki / kii",
+            "kalman": "bandwidth_hz"}.get(comp.controller.kind, "kind")
+    where = f"compensation.controller.{knob}"
+    if not mg.stable:
+        raise ScenarioError(f"{where}: the closed loop is unstable (analytic loop model: "
+                            f"gain margin {mg.gain_margin_db:.1f} dB, phase margin "
+                            f"{mg.phase_margin_deg:.0f} deg); lower it, or count the latency "
+                            "with compensation.controller.smith: true")
+    if mg.phase_margin_deg < comp.min_phase_margin_deg:
+        raise ScenarioError(f"{where}: phase margin {mg.phase_margin_deg:.1f} deg is below "
+                            f"compensation.min_phase_margin_deg ({comp.min_phase_margin_deg:g}"
+                            "); lower it")
+    if mg.modulus_margin < comp.min_modulus_margin:
+        raise ScenarioError(f"{where}: the loop passes within {mg.modulus_margin:.2f} of -1 "
+                            f"(modulus margin; compensation.min_modulus_margin is "
+                            f"{comp.min_modulus_margin:g}); lower it")
+
+
+def nominal_target(m: Models):
+    """The orbit/attitude prediction of the controller's target: the nominal (jitter-free)
+    image motion at the main imager's centre since frame 0's exposure mid-time, minus the
+    motion the imager follows by itself. A function t (N,) -> (N, 2) px."""
+    cam = m.main_camera
+    t0 = float(m.frame_mid_s[0])
+    ground = cam.ground_points(cam.focal_plane.center_px[None], t0, m.terrain.height_at)
+
+    def nominal(t_s: np.ndarray) -> np.ndarray:
+        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        mo = cam.image_motion_px(ground, t, t0, nominal=True)[:, 0]
+        return mo - (m.charge_px(t) - m.charge_px(np.array(t0)))
+
+    return nominal

@@ -1,0 +1,336 @@
+"""Plants at three fidelities behind one protocol (compensation.blocks.Plant).
+
+``rendered``: Mitsuba renders every tracker frame with the orbit, attitude and the stage's
+trajectory inside the exposure; ``texture``: the scene's albedo, seen once through the camera
+model, warped by the true motion field (affine, from the camera model) and the stage, blurred
+over the exposure, the optics and the sensor noise applied, in numpy; both are tracked by the
+real correlator (BlockTracker), cut where orbit and attitude predict the blocks. ``analytic``:
+no images, the true block shifts plus the correlator's predicted noise
+(compensation.plants.AnalyticPlant). The loop code is the same for all three.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from compensation.blocks import BlockMeasurements
+from compensation.plants import AnalyticPlant
+from correlator.tracker import BlockTracker, extract_blocks
+from imc import streams
+from imc.build import Models, frame_seeds, predicted_px
+
+#: pose keyframes per exposure while the stage holds still, and while it moves
+KEYFRAMES_STILL = 5
+KEYFRAMES_MOVING = 33
+
+
+def expose_frame(m: Models, radiance: np.ndarray, gain: float, rng) -> np.ndarray:
+    """Radiance -> optics MTF -> photo-electrons -> digital frame."""
+    img = m.optics.apply(radiance)
+    if m.scenario.camera.tracker.signal == "radiometric":
+        electrons = m.radiometry.electrons_per_s(
+            img, m.optics.f_number, m.optics.transmission, m.optics.pixel_pitch_m,
+            m.optics.wavelength_m) * m.exposure_s
+    else:
+        electrons = img * gain
+    return m.sensor.expose(electrons, rng, m.exposure_s)
+
+
+class TrackerPlant:
+    """Frames from an image model (:meth:`radiance`), tracked by the real correlator.
+
+    A fixed reference (frame 0, or the frame the estimator chose) while the predicted motion
+    keeps the blocks on the sensor; in a scanning view every block is ``leaving``, so each
+    measured frame becomes the next reference and its blocks are cut where the content will
+    be half-way (today's chain).
+    """
+
+    def __init__(self, m: Models):
+        self.m = m
+        n = len(m.frame_t_s)
+        fp = m.camera.focal_plane
+        self.block_px = m.scenario.correlator.block_px
+        self.n_blocks = len(m.corners)
+        self.frames = np.zeros((n, fp.rows, fp.cols), np.uint16)
+        self.ref_corners_rec = np.zeros((n, self.n_blocks, 2), int)
+        self.stage_mean = np.zeros((n, 2))
+        self.grid_centers = BlockTracker.centers_from(m.corners, self.block_px)
+        self.ref = 0
+        self.ref_corners = m.corners.copy()
+        self.gain = 0.0
+        self.tracker: BlockTracker | None = None
+        self._ground: dict[tuple[int, bytes], np.ndarray] = {}
+
+    # -- the image model, per fidelity --------------------------------------------------------
+    def radiance(self, k: int, stage) -> np.ndarray:
+        raise NotImplementedError
+
+    # -- the protocol ---------------------------------------------------------------------------
+    def measure(self, k: int, stage, blocks: np.ndarray) -> BlockMeasurements:
+        m = self.m
+        t0 = float(m.frame_t_s[k])
+        self.stage_mean[k] = stage.mean(t0, t0 + m.exposure_s)
+        rng, _ = frame_seeds(m.scenario.seed, k)
+        radiance = self.radiance(k, stage)
+        if k == 0:
+            self.gain = m.sensor.gain_for(m.optics.apply(radiance))
+        self.frames[k] = expose_frame(m, radiance, self.gain, rng)
+        b, nb = self.block_px, self.n_blocks
+        if k == 0:
+            self.tracker = BlockTracker(self.frames[0], m.corners, b, m.correlator)
+            self.ref_corners_rec[0] = m.corners
+            return BlockMeasurements(0, t0 + 0.5 * m.exposure_s, np.zeros(nb, int),
+                                     self.grid_centers.copy(), np.zeros((nb, 2)),
+                                     np.full((nb, 2), 1e-6), np.ones(nb, bool),
+                                     np.full(nb, np.inf), np.zeros(nb), np.zeros(nb, bool),
+                                     np.zeros((nb, 2)), np.zeros(2))
+        ref = self.ref
+        if m.chain:
+            half = np.rint(predicted_px(m, self.grid_centers, ref, k, self.stage_mean[ref],
+                                        self.stage_mean[k]) / 2.0)
+            fp = m.camera.focal_plane
+            lim = np.array([fp.rows - b, fp.cols - b])
+            self.ref_corners = np.clip(m.corners - half.astype(int), 0, lim)
+            self.tracker = BlockTracker(self.frames[ref], self.ref_corners, b, m.correlator)
+        elif self.tracker is None:  # resumed after a re-reference
+            self.tracker = BlockTracker(self.frames[ref], self.ref_corners, b, m.correlator)
+        centers = BlockTracker.centers_from(self.ref_corners, b)
+        pred = predicted_px(m, centers, ref, k, self.stage_mean[ref], self.stage_mean[k])
+        todo = np.flatnonzero(blocks)
+        shift = np.full((nb, 2), np.nan)
+        sigma = np.full((nb, 2), np.inf)
+        valid = np.zeros(nb, bool)
+        peak = np.zeros(nb)
+        if len(todo):
+            res = self.tracker.update(self.frames[k], pred, streams.rng(m.scenario.seed,
+                                                                        "optical", k),
+                                      todo if len(todo) < nb else None)
+            shift[todo], valid[todo], peak[todo] = res.shift, res.valid, res.peak
+            sigma[todo] = np.where(res.valid[:, None], res.crlb, np.inf)
+        self.ref_corners_rec[k] = self.ref_corners
+        deform, content, field = self._prediction(centers, ref, k)
+        return BlockMeasurements(k, t0 + 0.5 * m.exposure_s, np.full(nb, ref), centers, shift,
+                                 sigma, valid, peak, deform, np.full(nb, m.chain), content,
+                                 field)
+
+    def _prediction(self, centers: np.ndarray, ref: int, k: int):
+        """The orbit/attitude/DEM prediction (no jitter) from frame ref to k: each block's
+        deformation (the largest difference between a corner's predicted motion and its
+        centre's), each block's content motion, and the field point's motion, px."""
+        m = self.m
+        h = 0.5 * (self.block_px - 1)
+        offs = np.array([[0.0, 0.0], [-h, -h], [-h, h], [h, -h], [h, h]])
+        pts = np.vstack([(centers[:, None, :] + offs[None]).reshape(-1, 2),
+                         np.asarray(m.field_point_px)[None]])
+        key = (ref, centers.tobytes())
+        if key not in self._ground:
+            self._ground = {key: m.camera.ground_points(pts + self.stage_mean[ref],
+                                                         float(m.frame_mid_s[ref]),
+                                                         m.terrain.height_at)}
+        mo = m.camera.image_motion_px(self._ground[key], m.frame_mid_s[k:k + 1],
+                                      float(m.frame_mid_s[ref]), nominal=True)[0]
+        blocks = mo[:-1].reshape(len(centers), 5, 2)
+        deform = np.max(np.linalg.norm(blocks[:, 1:] - blocks[:, :1], axis=-1), axis=1)
+        return deform, blocks[:, 0].copy(), mo[-1].copy()
+
+    def rereference(self, k: int) -> None:
+        self.ref = k
+        if not self.m.chain:
+            self.ref_corners = self.m.corners.copy()
+            self.tracker = BlockTracker(self.frames[k], self.ref_corners, self.block_px,
+                                        self.m.correlator)
+
+    def chunk_arrays(self, start: int, stop: int) -> dict[str, np.ndarray]:
+        return {"frames": self.frames[start:stop].copy(),
+                "ref_corners": self.ref_corners_rec[start:stop].copy(),
+                "stage_mean": self.stage_mean[start:stop].copy(),
+                "ref": np.array(self.ref), "cur_corners": self.ref_corners.copy(),
+                "gain": np.array(self.gain)}
+
+    def restore(self, chunks: list[dict[str, np.ndarray]]) -> None:
+        stop = 0
+        for c in chunks:
+            n = len(c["frames"])
+            self.frames[stop:stop + n] = c["frames"]
+            self.ref_corners_rec[stop:stop + n] = c["ref_corners"]
+            self.stage_mean[stop:stop + n] = c["stage_mean"]
+            stop += n
+        last = chunks[-1]
+        self.ref = int(last["ref"])
+        self.ref_corners = np.asarray(last["cur_corners"], dtype=int)
+        self.gain = float(last["gain"])
+        self.tracker = None  # rebuilt from the reference frame at the next measurement
+
+    def close(self) -> None:
+        """Release what the image model holds."""
+
+
+class RenderedPlant(TrackerPlant):
+    """Every frame rendered by Mitsuba with the pose and the stage moving inside it."""
+
+    def __init__(self, m: Models, renderer=None):
+        super().__init__(m)
+        if renderer is None:
+            from scene.kernel import Renderer, Sun  # the Mitsuba layer, only when rendering
+
+            fp = m.camera.focal_plane
+            renderer = Renderer(m.terrain, Sun(*m.sun_deg), fp.rows, fp.cols,
+                                spp=m.scenario.scene.spp, clouds=m.clouds)
+        self.renderer = renderer
+        self.render_s = 0.0
+
+    def radiance(self, k: int, stage) -> np.ndarray:
+        import time
+
+        from scene.pinhole import ray_keyframes
+
+        m = self.m
+        t0 = float(m.frame_t_s[k])
+        t_samples, _ = stage.samples
+        moving = np.any((t_samples > t0) & (t_samples < t0 + m.exposure_s))
+        n_kf = KEYFRAMES_MOVING if moving else KEYFRAMES_STILL
+        times = t0 + np.linspace(0.0, m.exposure_s, n_kf)
+        offsets = stage(times) if moving else self.stage_mean[k]
+        start = time.perf_counter()
+        kf = ray_keyframes(m.camera.pose(times), m.camera.focal_plane, offsets,
+                           self.renderer.z_start_m)
+        out = self.renderer.render(kf, streams.render_seed(m.scenario.seed, k))
+        self.render_s += time.perf_counter() - start
+        return out
+
+
+class TexturePlant(TrackerPlant):
+    """The scene's albedo as the tracker sees it at t = 0 (through the camera model and the
+    DEM), warped at every pixel by the true motion and the stage, averaged over
+    ``subsamples`` instants of the exposure; flat shading (no sun, no shadows), numpy only.
+
+    The motion of pixel p is the nominal motion of its own ground point (orbit, attitude,
+    relief parallax, exact projection at ``key_dt_s`` steps, linear in between) plus the
+    jitter's, taken at the sensor centre (the jitter turns the whole field rigidly).
+    """
+
+    def __init__(self, m: Models, subsamples: int = 4, margin_px: int = 16,
+                 key_dt_s: float = 0.1):
+        from scipy.ndimage import gaussian_filter, map_coordinates, spline_filter
+
+        super().__init__(m)
+        self._map = map_coordinates
+        cam, fp, terrain = m.camera, m.camera.focal_plane, m.terrain
+        t0 = float(m.frame_mid_s[0])
+        self.subsamples = subsamples
+        frac = (np.arange(subsamples) + 0.5) / subsamples
+        self.times = (m.frame_t_s[:, None] + frac[None, :] * m.exposure_s)  # (T, S)
+        rr, cc = np.mgrid[0:fp.rows, 0:fp.cols].astype(np.float64)
+        self.pixels = np.stack([rr, cc])
+        ground = cam.ground_points(np.stack([rr, cc], axis=-1), t0, terrain.height_at)
+        self.ground = ground.reshape(-1, 3)
+        end = float(self.times[-1, -1])
+        n_key = max(2, int(np.ceil((end - 0.0) / key_dt_s)) + 1)
+        self.key_t = np.linspace(0.0, max(end, key_dt_s), n_key)
+        nominal = np.stack([cam.image_motion_px(self.ground, np.array([tk]), t0,
+                                                nominal=True)[0] for tk in self.key_t])
+        self.nominal = nominal.reshape(n_key, fp.rows, fp.cols, 2).astype(np.float32)
+        c = fp.center_px
+        gc = cam.ground_points(c[None], t0, terrain.height_at)
+        flat = self.times.ravel()
+        jit = (cam.image_motion_px(gc, flat, t0)[:, 0]
+               - cam.image_motion_px(gc, flat, t0, nominal=True)[:, 0])
+        self.jitter = jit.reshape(*self.times.shape, 2)
+        motion_max = float(np.max(np.abs(nominal))) + float(np.max(np.abs(jit)))
+        margin = int(np.ceil(motion_max)) + margin_px
+        self.margin = margin
+        gr, gc2 = np.mgrid[-margin:fp.rows + margin, -margin:fp.cols + margin]
+        pts = cam.ground_points(np.stack([gr, gc2], axis=-1).astype(np.float64), t0,
+                                terrain.height_at)
+        alb = terrain.albedo
+        gsd = float(np.median(np.linalg.norm(np.diff(pts[:, :, :2], axis=1), axis=-1)))
+        texel = terrain.texel_m
+        sig = max(0.0, 0.5 * gsd / texel - 0.3)
+        if sig > 0:
+            alb = gaussian_filter(alb, sig, mode="nearest")
+        # albedo rows run north to south (texel centres at (k + 0.5) / N, row 0 = north edge)
+        half = 0.5 * np.array(terrain.size_m)
+        col = (pts[..., 0] + half[0]) / texel - 0.5
+        row = (half[1] - pts[..., 1]) / texel - 0.5
+        base = map_coordinates(alb, [row, col], order=1, mode="nearest")
+        self.base = spline_filter(base, order=3)
+
+    def _nominal_at(self, t: float) -> np.ndarray:
+        """Nominal per-pixel motion (2, H, W) at time t (linear between key times)."""
+        i = int(np.clip(np.searchsorted(self.key_t, t) - 1, 0, len(self.key_t) - 2))
+        a = (t - self.key_t[i]) / (self.key_t[i + 1] - self.key_t[i])
+        mo = (1.0 - a) * self.nominal[i] + a * self.nominal[i + 1]
+        return np.moveaxis(mo, -1, 0).astype(np.float64)
+
+    def radiance(self, k: int, stage) -> np.ndarray:
+        s = stage(self.times[k])  # (S, 2)
+        acc = np.zeros(self.pixels.shape[1:])
+        for i in range(self.subsamples):
+            mot = self._nominal_at(float(self.times[k, i])) + self.jitter[k, i][:, None, None]
+            src = self.pixels - mot + s[i][:, None, None] + self.margin
+            acc += self._map(self.base, src, order=3, mode="nearest", prefilter=False)
+        return acc / self.subsamples
+
+    def predicted_sigma_px(self) -> np.ndarray:
+        """The correlator's predicted 1-sigma error (B, 2) on this scene: frame 0 against a
+        second exposure of the same content (independent noise)."""
+        m = self.m
+        rad = self.radiance(0, _Still())
+        gain = m.sensor.gain_for(m.optics.apply(rad))
+        a = expose_frame(m, rad, gain, streams.rng(m.scenario.seed, "texture", 0))
+        b = expose_frame(m, rad, gain, streams.rng(m.scenario.seed, "texture", 1))
+        bp = m.scenario.correlator.block_px
+        tracker = BlockTracker(a, m.corners, bp, m.correlator)
+        res = tracker.correlator.measure(extract_blocks(b, m.corners, bp))
+        crlb = np.where(res.valid[:, None], res.crlb, np.nan)
+        if not np.isfinite(crlb).any():
+            return np.full((self.n_blocks, 2), 0.05)
+        return np.where(np.isfinite(crlb), crlb, np.nanmedian(crlb))
+
+
+class _Still:
+    """A stage at rest (for one-off exposures)."""
+
+    samples = (np.zeros(1), np.zeros((1, 2)))
+
+    def __call__(self, t_s) -> np.ndarray:
+        return np.zeros(np.shape(t_s) + (2,))
+
+    def mean(self, t0_s: float, t1_s: float) -> np.ndarray:
+        return np.zeros(2)
+
+
+def analytic_plant(m: Models, sigma_px) -> AnalyticPlant:
+    """Measurements = the camera model's true block shifts + noise of ``sigma_px``."""
+    cam = m.camera
+    t0 = float(m.frame_mid_s[0])
+    centers = BlockTracker.centers_from(m.corners, m.scenario.correlator.block_px)
+    pts = np.vstack([centers, np.asarray(m.field_point_px)[None]])
+    ground = cam.ground_points(pts, t0, m.terrain.height_at)
+
+    def motion(t: np.ndarray) -> np.ndarray:
+        return cam.image_motion_px(ground[:-1], t, t0)
+
+    def nominal(t: np.ndarray) -> np.ndarray:
+        return cam.image_motion_px(ground[:-1], t, t0, nominal=True)
+
+    def field_nominal(t: np.ndarray) -> np.ndarray:
+        return cam.image_motion_px(ground[-1:], t, t0, nominal=True)[:, 0]
+
+    return AnalyticPlant(motion, centers, sigma_px, m.frame_t_s, m.exposure_s,
+                         seed=tuple(streams.key(m.scenario.seed, "analytic")),
+                         samples=m.scenario.metrics.samples_per_frame, nominal_px=nominal,
+                         field_nominal_px=field_nominal)
+
+
+def build_plant(m: Models):
+    """The plant of the scenario's ``plant.fidelity``."""
+    fid = m.scenario.plant.fidelity
+    if fid == "rendered":
+        return RenderedPlant(m)
+    if fid == "texture":
+        return TexturePlant(m)
+    sigma = m.scenario.plant.sigma_px
+    if sigma is None:
+        sigma = TexturePlant(m).predicted_sigma_px()
+    return analytic_plant(m, sigma)

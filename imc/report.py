@@ -1,0 +1,194 @@
+"""What a run reports: metrics.json, tracks.csv, frames.npz and the Rerun recording."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from compensation.loop import LoopResult
+from compensation.metrics import residual_metrics
+from imc.build import LoopParts, Models
+from imc.io import write_csv, write_json, write_npz
+from imc.truth import Truth
+
+
+def _floats(v) -> list[float | None]:
+    return [float(x) if np.isfinite(x) else None for x in np.atleast_1d(v)]
+
+
+def summarize(m: Models, res: LoopResult, truth: Truth, parts: LoopParts,
+              link_stats: dict | None = None) -> dict:
+    """Metrics with and without compensation, the tracker's accuracy, the loop, geometry."""
+    sc = m.scenario
+    rec = res.record
+    m_open = residual_metrics(truth.t_s, truth.residual_px(None), truth.window_s)
+    m_closed = residual_metrics(truth.t_s, truth.residual_px(res.trajectory), truth.window_s)
+    err = (rec.shift_px - truth.meas_px)[1:]
+    measured = rec.measured[1:]
+    ok = rec.valid[1:] & measured
+    nan2 = np.array([np.nan] * 2)
+    rms_err = np.sqrt(np.mean(err[ok] ** 2, axis=0)) if ok.any() else nan2
+    crlb = np.median(rec.sigma_px[1:][ok], axis=0) if ok.any() else nan2
+    duration = len(m.frame_t_s) / m.rate_hz
+    cmd_t, cmd_u = res.commanded.samples
+    out = {
+        "scenario": sc.name,
+        "frames": int(len(m.frame_t_s)),
+        "blocks": int(len(m.corners)),
+        "compensation_enabled": sc.compensation.enabled,
+        "without_compensation": m_open.to_dict(),
+        "with_compensation": m_closed.to_dict(),
+        "rms_reduction": m_open.rms_total_px / max(m_closed.rms_total_px, 1e-12),
+        "tracker": {
+            "reference": "chain" if m.chain else "fixed",
+            "valid_fraction": float(ok.sum() / max(measured.sum(), 1)),
+            "rms_error_px": _floats(rms_err),
+            "median_crlb_px": _floats(crlb),
+            "bias_px": _floats(err[ok].mean(axis=0) if ok.any() else nan2),
+            "rereferences": int(rec.rereferenced.sum()),
+        },
+        "loop": {
+            "fidelity": sc.plant.fidelity,
+            "controller": sc.compensation.controller.kind,
+            "estimator": sc.compensation.estimator.kind,
+            "actuator": sc.compensation.actuator.kind,
+            "measurement_rate_hz": float(parts.model.rate_hz),
+            "latency_s": float(parts.model.latency_s),
+            "analytic": parts.margins.to_dict(),
+            "measurements_delivered": int(np.isfinite(rec.arrive_s).sum()),
+            "estimates_valid": int(rec.motion_valid.sum()),
+            "outlier_fraction": float(rec.outliers.sum() / max(rec.used.sum()
+                                                               + rec.outliers.sum(), 1)),
+            "estimate_rms_error_px": _estimate_error(m, res, truth),
+            "commands": int(len(cmd_t) - 1),
+            "max_command_px": _floats(np.max(np.abs(cmd_u), axis=0)),
+            "stage_saturation_fraction": float(res.saturated_s / duration),
+            "lines_hz": _lines(res),
+        },
+        "main_imager_start_s": float(sc.camera.main_imager.start_s),
+        "geometry": geometry_summary(m),
+    }
+    if m.schedule is not None:
+        done = m.schedule.done[1:]
+        lat = (m.schedule.deliver_s - (m.frame_t_s + m.exposure_s)[:, None])[1:][done]
+        out["correlator_device"] = {
+            "correlations_per_s": m.timing.correlations_per_s,
+            "latency_s": m.timing.latency_s,
+            "pairs_processed": int(done.sum()),
+            "pairs_dropped": int((~done).sum()),
+            "frames_measured": int(done.any(axis=1).sum()),
+            "mean_result_age_s": float(lat.mean()) if lat.size else None,
+        }
+    if link_stats is not None:
+        out["link"] = dict(link_stats)
+    return out
+
+
+def _estimate_error(m: Models, res: LoopResult, truth: Truth) -> list[float | None]:
+    """RMS error of the loop's motion estimate at the field point against the camera model
+    (exposure-mean motion at the main imager's centre since frame 0), valid estimates."""
+    rec = res.record
+    ok = rec.motion_valid.copy()
+    ok[0] = False
+    if not ok.any():
+        return [None, None]
+    cam = m.main_camera
+    s = m.scenario.metrics.samples_per_frame
+    t0 = float(m.frame_mid_s[0])
+    ground = cam.ground_points(cam.focal_plane.center_px[None], t0, m.terrain.height_at)
+    ks = np.flatnonzero(ok)
+    times = (m.frame_t_s[ks, None] + (np.arange(s) + 0.5) / s * m.exposure_s).ravel()
+    mo = cam.image_motion_px(ground, times, t0)[:, 0].reshape(len(ks), s, 2).mean(axis=1)
+    t00 = m.frame_t_s[0] + (np.arange(s) + 0.5) / s * m.exposure_s
+    mo0 = cam.image_motion_px(ground, t00, t0)[:, 0].mean(axis=0)
+    err = rec.motion_px[ks] - (mo - mo0)
+    return _floats(np.sqrt(np.mean(err**2, axis=0)))
+
+
+def _lines(res: LoopResult) -> list[float]:
+    st = res.states.get("controller")
+    if st is None:
+        return []
+    if hasattr(st, "lines_hz"):
+        return [float(f) for f in st.lines_hz]
+    if hasattr(st, "omega"):
+        return [float(w / (2 * np.pi)) for w in st.omega]
+    return []
+
+
+def geometry_summary(m: Models) -> dict:
+    """Orbit, pointing, imager and sensor figures of the run (SI units in the key names)."""
+    orbit, cam = m.camera.orbit, m.camera
+    lat, lon, h = orbit.ground_point(0.0)
+    fp = cam.focal_plane
+    ground = cam.ground_points(fp.center_px[None], 0.0, m.terrain.height_at)
+    rng_m = float(np.linalg.norm(ground[0] - cam.pose(np.array(0.0)).position_m))
+    jit = cam.attitude.jitter.rotvec_rad(np.linspace(0.0, m.frame_t_s[-1] + m.exposure_s, 2001))
+    out = {
+        "orbit_period_s": float(getattr(orbit, "period_s", np.nan)),
+        "satellite_height_m": float(h),
+        "subsatellite_lat_lon_deg": [float(lat), float(lon)],
+        "ground_speed_mps": float(orbit.ground_speed_mps(0.0)),
+        "heading_deg": float(orbit.heading_deg(0.0)),
+        "off_nadir_deg": float(cam.attitude.off_nadir_deg(orbit, 0.0)),
+        "slant_range_m": rng_m,
+        "gsd_m": rng_m * fp.ifov_rad,
+        "image_velocity_px_s": [float(v) for v in m.main_velocity_px_s],
+        "jitter_rms_px": [float(v) for v in (jit.std(axis=0) / fp.ifov_rad)],
+        "tracker_snr": m.sensor.snr(exposure_s=m.exposure_s)
+        if m.scenario.camera.tracker.signal == "mean_level" else None,
+        "scene_kind": m.scenario.scene.kind,
+        "scene_center_lat_lon_deg": [m.scenario.scene.center_lat_deg,
+                                     m.scenario.scene.center_lon_deg],
+        "sun_elevation_azimuth_deg": list(m.sun_deg),
+        "cloud_cover": m.clouds.cover if m.clouds is not None else 0.0,
+        "main_imager": m.imager.kind,
+        "line_rate_hz": m.line_rate_hz,
+    }
+    if np.isnan(out["orbit_period_s"]):
+        out["orbit_period_s"] = None
+    if hasattr(orbit, "local_time_of_ascending_node_h"):
+        out["local_time_of_ascending_node_h"] = float(orbit.local_time_of_ascending_node_h)
+    return out
+
+
+def write_outputs(m: Models, res: LoopResult, truth: Truth, metrics: dict, out: Path,
+                  frames: np.ndarray | None, ref_corners: np.ndarray | None,
+                  save_frames: bool, rerun: bool = True) -> list[Path]:
+    """metrics.json, tracks.csv, recording.rrd and (optionally) frames.npz, atomically."""
+    out.mkdir(parents=True, exist_ok=True)
+    rec = res.record
+    written = []
+    rows = []
+    stage = truth.stage_mean_px
+    for k, t in enumerate(m.frame_t_s):
+        for b in range(len(m.corners)):
+            rows.append([f"{t:.6f}", k, b, int(rec.ref_frame[k, b]),
+                         f"{truth.meas_px[k, b, 0]:.5f}", f"{truth.meas_px[k, b, 1]:.5f}",
+                         f"{rec.shift_px[k, b, 0]:.5f}", f"{rec.shift_px[k, b, 1]:.5f}",
+                         f"{stage[k, 0]:.5f}", f"{stage[k, 1]:.5f}",
+                         f"{rec.motion_px[k, 0]:.5f}", f"{rec.motion_px[k, 1]:.5f}",
+                         int(rec.valid[k, b]), f"{rec.peak[k, b]:.3f}",
+                         f"{rec.sigma_px[k, b, 0]:.5f}", f"{rec.sigma_px[k, b, 1]:.5f}",
+                         int(rec.used[k, b]), int(rec.outliers[k, b])])
+    header = ["t_s", "frame", "block", "ref_frame", "true_row_px", "true_col_px",
+              "meas_row_px", "meas_col_px", "stage_row_px", "stage_col_px",
+              "estimate_row_px", "estimate_col_px", "valid", "psr", "crlb_row_px",
+              "crlb_col_px", "used", "outlier"]
+    write_csv(out / "tracks.csv", header, rows)
+    written.append(out / "tracks.csv")
+    write_json(out / "metrics.json", metrics)
+    written.append(out / "metrics.json")
+    if save_frames and frames is not None:
+        write_npz(out / "frames.npz", frames=frames, t_s=m.frame_t_s,
+                  stage_offset_px=stage, ref_index=rec.ref_frame[:, 0],
+                  ref_corners=ref_corners, true_shift_px=truth.meas_px,
+                  exposure_s=np.array(m.exposure_s))
+        written.append(out / "frames.npz")
+    if rerun:
+        from imc.rerun_log import write_recording
+
+        write_recording(out / "recording.rrd", m, res, truth, frames, ref_corners)
+        written.append(out / "recording.rrd")
+    return written

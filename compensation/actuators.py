@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import ClassVar
 
 import numpy as np
@@ -115,19 +116,25 @@ class IdealStage:
                                    t_cmd_s=t_s, pend=2 if self._ramping else 1, saturated=sat)
 
     def advance(self, state: IdealState, t_s: float):
+        """Samples since the last call: the command's start (and, while ramping, the
+        ramp's end once reached, or the position at t_s, so the trajectory is complete up
+        to t_s)."""
         st = self._account(state, t_s)
         times, pos = [], []
-        if st.pend == 2 or (st.pend == 1 and not self._ramping):
+        if st.pend >= 1 and (st.pend == 2 or not self._ramping):
             times.append(st.t_cmd_s)
             pos.append(st.start_px if self._ramping else st.u_px)
-        if self._ramping and st.pend >= 1 and t_s >= st.t_cmd_s + self.ramp_s:
-            times.append(st.t_cmd_s + self.ramp_s)
-            pos.append(st.u_px)
-            pend = 0
-        elif self._ramping and st.pend >= 1:
-            pend = 1
-        else:
-            pend = 0
+        pend = 0
+        if self._ramping and st.pend >= 1:
+            end = st.t_cmd_s + self.ramp_s
+            if t_s >= end:
+                times.append(end)
+                pos.append(st.u_px)
+            else:
+                if t_s > st.t_cmd_s:
+                    times.append(t_s)
+                    pos.append(self._position(st, t_s))
+                pend = 1
         st = dataclasses.replace(st, pend=pend)
         if not times:
             return st, np.empty(0), np.empty((0, 2))
@@ -233,6 +240,14 @@ class PiezoStage:
             raise ValueError("PiezoStage.update_hz is not set")
         return 1.0 / self.update_hz
 
+    @cached_property
+    def _mode(self) -> tuple[np.ndarray, np.ndarray]:
+        return self._mode_matrices()
+
+    @cached_property
+    def _hysteresis(self) -> tuple[float, float]:
+        return self._bouc_wen()
+
     def _mode_matrices(self) -> tuple[np.ndarray, np.ndarray]:
         """Exact zero-order-hold discretisation (A_d 2x2, B_d 2) of the mode over one tick."""
         w = 2.0 * np.pi * self.resonance_hz
@@ -292,8 +307,8 @@ class PiezoStage:
         n = n_to - state.tick
         if n <= 0:
             return state, np.empty(0), np.empty((0, 2))
-        ad, bd = self._mode_matrices()
-        alpha, beta = self._bouc_wen()
+        ad, bd = self._mode
+        alpha, beta = self._hysteresis
         u, sat = _stroke_limit(state.u_cmd, self.stroke_px)
         if self.dac_bits is not None:
             q = self.stroke_px / 2.0**self.dac_bits

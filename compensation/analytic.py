@@ -341,3 +341,24 @@ def measured_rejection(model: LoopModel, freqs_hz, amplitude_px: float = 0.1,
         e = np.exp(-2j * np.pi * f * ts)
         out.append(abs(np.sum(r * e)) / abs(np.sum(m * e)))
     return np.array(out)
+
+
+def max_integrator_gain(model: LoopModel, peak_max: float = 2.0, lo: float = 1e-3,
+                        hi: float = 2.0) -> float:
+    """The largest integrator gain whose loop is stable with peak |S| <= peak_max (the same
+    robustness for every stage, so their rejections can be compared); bisection."""
+    import dataclasses as dc
+
+    def ok(g: float) -> bool:
+        c = dc.replace(model.controller, gain=g)
+        if getattr(c, "lines", ()):
+            c = design_lines(c, dc.replace(model, controller=c))
+        mg = dc.replace(model, controller=c).margins()
+        return mg.stable and mg.peak_rejection <= peak_max
+
+    if not ok(lo):
+        return float("nan")
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if ok(mid) else (lo, mid)
+    return lo

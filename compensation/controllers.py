@@ -371,7 +371,7 @@ class KalmanPredictor:
     window_s: float = 1.0
     every_s: float = 0.5
     max_lines: int = 4
-    line_snr: float = 30.0
+    line_snr: float = 40.0
     line_bandwidth_hz: float = 0.05
     lead_s: float | None = None
     noise_px: float | None = None
@@ -526,7 +526,9 @@ class KalmanPredictor:
             cov[:, j:j + 2, j:j + 2] = np.eye(2) * max(sigma**2, 1e-8) * 4.0
         lines = np.concatenate([st.lines_hz, freqs])
         line_q = np.concatenate([st.line_q, [self._line_q(a) for a in amp]])
-        return dataclasses.replace(st, x=x, cov=cov, lines_hz=lines, line_q=line_q)
+        # the window's innovations predate the new lines: start a fresh one
+        return dataclasses.replace(st, x=x, cov=cov, lines_hz=lines, line_q=line_q,
+                                   hist_t=np.empty(0), hist_z=np.empty((0, 2)))
 
     # -- transfer function (steady state, regular sampling) -------------------------------
     def steady_state(self, period_s: float, sigma_px: float, lines_hz=None, line_q=None):
@@ -603,7 +605,7 @@ def find_lines(t: np.ndarray, z: np.ndarray, f_min_hz: float, snr: float, max_ne
         lo, mid, hi = np.log(power[p - 1:p + 2])
         den = lo - 2 * mid + hi
         f = freqs[p] + (0.5 * (lo - hi) / den if den < 0 else 0.0) * (freqs[1] - freqs[0])
-        if all(abs(f - g) > 2 * res for g in list(known_hz) + out):
+        if all(abs(f - g) > 4 * res for g in list(known_hz) + out):
             out.append(float(f))
         if len(out) >= max_new:
             break

@@ -202,15 +202,18 @@ class MotionFieldEstimator(ReferencingEstimator):
         used = ok.copy()
         outliers = np.zeros_like(ok)
         model = self._model_for(int(used.sum()))
-        while True:
+        coef, cov, chi2 = self._fit(unpred[used], meas.sigma_px[used], meas.centers_px[used],
+                                    model)
+        # look for outliers only when the fit leaves residuals the errors do not explain
+        while chi2 > self.outlier_sigma**2:
             worst, score = self._worst(unpred, meas, used, model)
             if worst < 0 or score <= self.outlier_sigma:
                 break
             used[worst] = False
             outliers[worst] = True
             model = self._model_for(int(used.sum()))
-        coef, cov, chi2 = self._fit(unpred[used], meas.sigma_px[used], meas.centers_px[used],
-                                    model)
+            coef, cov, chi2 = self._fit(unpred[used], meas.sigma_px[used],
+                                        meas.centers_px[used], model)
         dof = 2 * int(used.sum()) - N_PARAMS[model]
         inflate = max(1.0, chi2 / dof) if dof > 0 else 1.0
         sigma = np.sqrt(np.diag(cov)[:2] * inflate)
@@ -241,7 +244,10 @@ class MotionFieldEstimator(ReferencingEstimator):
         y = pol.reshape(-1)
         xw = x * w[:, None]
         info = xw.T @ xw
-        cov = np.linalg.pinv(info)
+        try:
+            cov = np.linalg.inv(info)
+        except np.linalg.LinAlgError:
+            cov = np.linalg.pinv(info)
         coef = cov @ (xw.T @ (y * w))
         chi2 = float(np.sum(((x @ coef - y) * w) ** 2))
         return coef, cov, chi2

@@ -30,6 +30,7 @@ class Trajectory:
     """A stage trajectory from samples: 'previous' (a step at each sample) or 'linear'.
 
     Before the first sample the stage is at the first sample's value (0 by construction).
+    Samples live in buffers that double when full, so appending is amortised O(1).
     """
 
     def __init__(self, interpolation: str, t0_s: float = 0.0):
@@ -37,22 +38,29 @@ class Trajectory:
             raise ValueError(f"interpolation must be 'previous' or 'linear', got "
                              f"{interpolation!r}")
         self.interpolation = interpolation
-        self._t: list[np.ndarray] = [np.array([t0_s])]
-        self._s: list[np.ndarray] = [np.zeros((1, 2))]
-        self._cache: tuple[np.ndarray, np.ndarray] | None = None
+        self._t = np.empty(256)
+        self._s = np.empty((256, 2))
+        self._t[0] = t0_s
+        self._s[0] = 0.0
+        self._n = 1
 
     def append(self, t_s: np.ndarray, s_px: np.ndarray) -> None:
-        if len(t_s):
-            self._t.append(np.asarray(t_s, dtype=np.float64))
-            self._s.append(np.asarray(s_px, dtype=np.float64).reshape(-1, 2))
-            self._cache = None
+        k = len(t_s)
+        if not k:
+            return
+        need = self._n + k
+        if need > len(self._t):
+            cap = max(need, 2 * len(self._t))
+            self._t = np.concatenate([self._t[: self._n], np.empty(cap - self._n)])
+            self._s = np.concatenate([self._s[: self._n], np.empty((cap - self._n, 2))])
+        self._t[self._n:need] = t_s
+        self._s[self._n:need] = np.asarray(s_px, dtype=np.float64).reshape(-1, 2)
+        self._n = need
 
     @property
     def samples(self) -> tuple[np.ndarray, np.ndarray]:
-        if self._cache is None:
-            self._cache = (np.concatenate(self._t), np.concatenate(self._s))
-            self._t, self._s = [self._cache[0]], [self._cache[1]]
-        return self._cache
+        """(times (N,), positions (N, 2)): views of the samples so far."""
+        return self._t[: self._n], self._s[: self._n]
 
     def __call__(self, t_s) -> np.ndarray:
         """Stage position (..., 2) at times t_s (...)."""
@@ -65,9 +73,11 @@ class Trajectory:
 
     def mean(self, t0_s: float, t1_s: float) -> np.ndarray:
         """Exact mean (2,) over [t0, t1] of the interpolated trajectory."""
-        t, s = self.samples
+        t, _ = self.samples
         eps = TIME_EPS * max(1.0, abs(t1_s))
-        inside = t[(t > t0_s + eps) & (t < t1_s - eps)]
+        lo, hi = np.searchsorted(t, [t0_s + eps, t1_s - eps], side="right")
+        inside = t[lo:hi]
+        inside = inside[inside > t0_s + eps]
         knots = np.concatenate([[t0_s], inside, [t1_s]])
         vals = self(knots)
         if self.interpolation == "previous":

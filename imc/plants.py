@@ -211,7 +211,7 @@ class TexturePlant(TrackerPlant):
 
     def __init__(self, m: Models, subsamples: int = 4, margin_px: int = 16,
                  key_dt_s: float = 0.1):
-        from scipy.ndimage import gaussian_filter, map_coordinates, spline_filter
+        from scipy.ndimage import map_coordinates, spline_filter
 
         super().__init__(m)
         self._map = map_coordinates
@@ -236,24 +236,9 @@ class TexturePlant(TrackerPlant):
         jit = (cam.image_motion_px(gc, flat, t0)[:, 0]
                - cam.image_motion_px(gc, flat, t0, nominal=True)[:, 0])
         self.jitter = jit.reshape(*self.times.shape, 2)
-        motion_max = float(np.max(np.abs(nominal))) + float(np.max(np.abs(jit)))
-        margin = int(np.ceil(motion_max)) + margin_px
-        self.margin = margin
-        gr, gc2 = np.mgrid[-margin:fp.rows + margin, -margin:fp.cols + margin]
-        pts = cam.ground_points(np.stack([gr, gc2], axis=-1).astype(np.float64), t0,
-                                terrain.height_at)
-        alb = terrain.albedo
-        gsd = float(np.median(np.linalg.norm(np.diff(pts[:, :, :2], axis=1), axis=-1)))
-        texel = terrain.texel_m
-        sig = max(0.0, 0.5 * gsd / texel - 0.3)
-        if sig > 0:
-            alb = gaussian_filter(alb, sig, mode="nearest")
-        # albedo rows run north to south (texel centres at (k + 0.5) / N, row 0 = north edge)
-        half = 0.5 * np.array(terrain.size_m)
-        col = (pts[..., 0] + half[0]) / texel - 0.5
-        row = (half[1] - pts[..., 1]) / texel - 0.5
-        base = map_coordinates(alb, [row, col], order=1, mode="nearest")
-        self.base = spline_filter(base, order=3)
+        reach = np.max(np.abs(nominal), axis=(0, 1)) + np.max(np.abs(jit), axis=0)
+        self.margin = np.ceil(reach).astype(int) + margin_px  # (rows, cols)
+        self.base = spline_filter(base_image(m, self.margin), order=3)
 
     def _nominal_at(self, t: float) -> np.ndarray:
         """Nominal per-pixel motion (2, H, W) at time t (linear between key times)."""
@@ -267,37 +252,49 @@ class TexturePlant(TrackerPlant):
         acc = np.zeros(self.pixels.shape[1:])
         for i in range(self.subsamples):
             mot = self._nominal_at(float(self.times[k, i])) + self.jitter[k, i][:, None, None]
-            src = self.pixels - mot + s[i][:, None, None] + self.margin
+            src = self.pixels - mot + s[i][:, None, None] + self.margin[:, None, None]
             acc += self._map(self.base, src, order=3, mode="nearest", prefilter=False)
         return acc / self.subsamples
 
-    def predicted_sigma_px(self) -> np.ndarray:
-        """The correlator's predicted 1-sigma error (B, 2) on this scene: frame 0 against a
-        second exposure of the same content (independent noise)."""
-        m = self.m
-        rad = self.radiance(0, _Still())
-        gain = m.sensor.gain_for(m.optics.apply(rad))
-        a = expose_frame(m, rad, gain, streams.rng(m.scenario.seed, "texture", 0))
-        b = expose_frame(m, rad, gain, streams.rng(m.scenario.seed, "texture", 1))
-        bp = m.scenario.correlator.block_px
-        tracker = BlockTracker(a, m.corners, bp, m.correlator)
-        res = tracker.correlator.measure(extract_blocks(b, m.corners, bp))
-        crlb = np.where(res.valid[:, None], res.crlb, np.nan)
-        if not np.isfinite(crlb).any():
-            return np.full((self.n_blocks, 2), 0.05)
-        return np.where(np.isfinite(crlb), crlb, np.nanmedian(crlb))
+
+def base_image(m: Models, margin_px) -> np.ndarray:
+    """The scene's albedo at every tracker pixel at t = 0 (through the camera model and the
+    DEM), with ``margin_px`` (rows, cols) around the sensor; the albedo is smoothed to the
+    ground sample distance first (no aliasing)."""
+    from scipy.ndimage import gaussian_filter, map_coordinates
+
+    cam, fp, terrain = m.camera, m.camera.focal_plane, m.terrain
+    mr, mc = (int(v) for v in np.broadcast_to(margin_px, (2,)))
+    gr, gc = np.mgrid[-mr:fp.rows + mr, -mc:fp.cols + mc]
+    pts = cam.ground_points(np.stack([gr, gc], axis=-1).astype(np.float64),
+                            float(m.frame_mid_s[0]), terrain.height_at)
+    alb = terrain.albedo
+    gsd = float(np.median(np.linalg.norm(np.diff(pts[:, :, :2], axis=1), axis=-1)))
+    texel = terrain.texel_m
+    sig = max(0.0, 0.5 * gsd / texel - 0.3)
+    if sig > 0:
+        alb = gaussian_filter(alb, sig, mode="nearest")
+    # albedo rows run north to south (texel centres at (k + 0.5) / N, row 0 = north edge)
+    half = 0.5 * np.array(terrain.size_m)
+    col = (pts[..., 0] + half[0]) / texel - 0.5
+    row = (half[1] - pts[..., 1]) / texel - 0.5
+    return map_coordinates(alb, [row, col], order=1, mode="nearest")
 
 
-class _Still:
-    """A stage at rest (for one-off exposures)."""
-
-    samples = (np.zeros(1), np.zeros((1, 2)))
-
-    def __call__(self, t_s) -> np.ndarray:
-        return np.zeros(np.shape(t_s) + (2,))
-
-    def mean(self, t0_s: float, t1_s: float) -> np.ndarray:
-        return np.zeros(2)
+def predicted_sigma_px(m: Models) -> np.ndarray:
+    """The correlator's predicted 1-sigma error (B, 2) on this scene: frame 0's content
+    (flat shading) exposed twice with independent noise, block against block."""
+    rad = base_image(m, 0)
+    gain = m.sensor.gain_for(m.optics.apply(rad))
+    a = expose_frame(m, rad, gain, streams.rng(m.scenario.seed, "texture", 0))
+    b = expose_frame(m, rad, gain, streams.rng(m.scenario.seed, "texture", 1))
+    bp = m.scenario.correlator.block_px
+    tracker = BlockTracker(a, m.corners, bp, m.correlator)
+    res = tracker.correlator.measure(extract_blocks(b, m.corners, bp))
+    crlb = np.where(res.valid[:, None], res.crlb, np.nan)
+    if not np.isfinite(crlb).any():
+        return np.full((len(m.corners), 2), 0.05)
+    return np.where(np.isfinite(crlb), crlb, np.nanmedian(crlb))
 
 
 def analytic_plant(m: Models, sigma_px) -> AnalyticPlant:
@@ -332,5 +329,5 @@ def build_plant(m: Models):
         return TexturePlant(m)
     sigma = m.scenario.plant.sigma_px
     if sigma is None:
-        sigma = TexturePlant(m).predicted_sigma_px()
+        sigma = predicted_sigma_px(m)
     return analytic_plant(m, sigma)

@@ -15,9 +15,6 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-#: box (spectral bins, odd) over which a reference's power is averaged for its weights; a
-#: compile-time constant, so the box loops unroll and vectorise
-SMOOTH_BINS = 11
 #: no NaN/inf assumptions (non-finite input is detected), but sums may be reassociated
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy",
         "fastmath": {"reassoc", "contract", "arcp", "nsz"}}
@@ -101,28 +98,30 @@ def prep_blocks(blocks, blk, wy, wx, weighted, out, stats):
 
 
 @nb.njit(**_JIT)
-def ref_spectra(spec, imm, imm_norm, energy, flat, alpha, ay, ax, rows, wconj, m, noise):
+def ref_spectra(spec, imm, imm_norm, energy, box, flat, alpha, ay, ax, rows, wconj, m, noise):
     """Per reference block: noise variance, Knapp-Carter weights W, W conj(R), gradient sums.
 
     spec (n, h, k) complex64 one-sided spectra of windowed blocks; imm (h, k) Immerkaer
     weights (sum ``imm_norm``); energy (n,) each window's sum of squares. W = P / (2 P + s2),
-    P: the mean of |R|^2 over a box of :data:`SMOOTH_BINS` (wrapped over rows, mirrored over
-    columns) less the noise power s2 per bin; ``flat``: W = 1/2.
-    Writes wconj = W conj(R), m (n, 3, 3) float64 (the sums alpha rows a_y^i a_x^j W^2 |R|^2,
-    i + j <= 2) and noise (n,) pixel variance. The complex arrays (n, h, k) are passed as
+    P: the mean of |R|^2 over ``box`` x ``box`` bins (odd; wrapped over rows, mirrored over
+    columns) less the noise power s2 per bin; ``flat``: W = 1/2. Writes wconj = W conj(R),
+    m (n, 3, 3) float64 (the sums alpha rows a_y^i a_x^j W^2 (|R|^2 - s2 / 2), i + j <= 2: see
+    :func:`crlb`) and noise (n,) pixel variance. The complex arrays (n, h, k) are passed as
     their interleaved float32 views (n, h, 2k).
     """
     n, h, k2 = spec.shape
     k = k2 // 2
-    r = SMOOTH_BINS // 2
-    kp = k + 2 * r
+    r = box // 2
     p = np.empty((h, k), np.float32)
-    pc = np.empty(h * kp, np.float32)  # rows mirror-padded by r columns
-    cb = np.empty(h * kp, np.float32)  # column box sums (first k of each padded row used)
-    rw = np.empty((h + 2 * r) * k, np.float32)  # column sums, rows wrap-padded by r
-    sm = np.empty(h * k, np.float32)  # the box mean of |R|^2
+    cs = np.empty((k + 2 * r + 1, 4), np.float64)  # prefix sums of mirror-padded rows
+    mirror = np.empty(k + 2 * r, np.int64)
+    for q in range(k + 2 * r):
+        jj = q - r
+        mirror[q] = -jj if jj < 0 else (2 * (k - 1) - jj if jj >= k else jj)
+    tmp = np.empty((h, k), np.float64)  # box sums over columns
+    t = np.empty(k, np.float64)  # running box sums over rows (float64: |R|^2 spans decades)
     wts = np.empty(k, np.float32)
-    norm = np.float32(1.0 / (SMOOTH_BINS * SMOOTH_BINS))
+    norm = 1.0 / (box * box)
     for b in range(n):
         acc = 0.0
         for i in range(h):
@@ -136,31 +135,42 @@ def ref_spectra(spec, imm, imm_norm, energy, flat, alpha, ay, ax, rows, wconj, m
         nv = acc / (imm_norm * energy[b])
         noise[b] = nv
         s2 = np.float32(nv * energy[b])
+        half_s2 = np.float32(0.5) * s2
         if not flat:
-            # box sums as long flat loops that accumulate in registers (they vectorise):
-            # columns, mirrored (d c b | a b c d | c b a) ...
-            for i in range(h):
-                o0 = i * kp
+            # box sums over columns (mirrored: d c b | a b c d | c b a) from prefix sums,
+            # four rows at a time (four independent addition chains) ...
+            for i0 in range(0, h, 4):
+                nr = min(4, h - i0)
+                a0 = 0.0
+                a1 = 0.0
+                a2 = 0.0
+                a3 = 0.0
+                cs[0, 0] = 0.0
+                cs[0, 1] = 0.0
+                cs[0, 2] = 0.0
+                cs[0, 3] = 0.0
+                for q in range(k + 2 * r):
+                    jj = mirror[q]
+                    a0 += p[i0, jj]
+                    if nr > 1:
+                        a1 += p[i0 + 1, jj]
+                    if nr > 2:
+                        a2 += p[i0 + 2, jj]
+                    if nr > 3:
+                        a3 += p[i0 + 3, jj]
+                    cs[q + 1, 0] = a0
+                    cs[q + 1, 1] = a1
+                    cs[q + 1, 2] = a2
+                    cs[q + 1, 3] = a3
+                for o in range(nr):
+                    for j in range(k):
+                        tmp[i0 + o, j] = cs[j + box, o] - cs[j, o]
+            # ... then a running box over rows (wrapped)
+            for j in range(k):
+                t[j] = 0.0
+            for o in range(-r, r + 1):
                 for j in range(k):
-                    pc[o0 + r + j] = p[i, j]
-                for o in range(1, r + 1):
-                    pc[o0 + r - o] = p[i, o]
-                    pc[o0 + r + k - 1 + o] = p[i, k - 1 - o]
-            for t in range(h * kp - 2 * r):
-                a = pc[t]
-                for o in range(1, SMOOTH_BINS):
-                    a += pc[t + o]
-                cb[t] = a
-            # ... then rows, wrapped
-            for i in range(h + 2 * r):
-                src = ((i - r) % h) * kp
-                for j in range(k):
-                    rw[i * k + j] = cb[src + j]
-            for t in range(h * k):
-                a = rw[t]
-                for o in range(1, SMOOTH_BINS):
-                    a += rw[t + o * k]
-                sm[t] = a * norm
+                    t[j] += tmp[o % h, j]
         for a in range(3):
             for c in range(3):
                 m[b, a, c] = 0.0
@@ -170,8 +180,12 @@ def ref_spectra(spec, imm, imm_norm, energy, flat, alpha, ay, ax, rows, wconj, m
                     wts[j] = 0.5
             else:
                 for j in range(k):
-                    ps = max(sm[i * k + j] - s2, np.float32(0.0))
+                    ps = max(np.float32(t[j] * norm) - s2, np.float32(0.0))
                     wts[j] = ps / (np.float32(2.0) * ps + s2 + np.float32(1e-30))
+                ia = (i + r + 1) % h
+                ib = (i - r) % h
+                for j in range(k):
+                    t[j] += tmp[ia, j] - tmp[ib, j]
             c0 = np.float32(0.0)
             c1 = np.float32(0.0)
             c2 = np.float32(0.0)
@@ -181,7 +195,7 @@ def ref_spectra(spec, imm, imm_norm, energy, flat, alpha, ay, ax, rows, wconj, m
                 wv = wts[j]
                 wr[2 * j] = wv * sr[2 * j]
                 wr[2 * j + 1] = -wv * sr[2 * j + 1]
-                q = alpha[j] * wv * wv * p[i, j]
+                q = alpha[j] * wv * wv * (p[i, j] - half_s2)
                 c0 += q
                 c1 += q * ax[j]
                 c2 += q * ax[j] * ax[j]
@@ -345,10 +359,12 @@ def crlb(m, noise, hess, npix, out):
 
     var(d) = H^-1 J H^-1, with H (n, 2, 2) the Hessian of c at the peak and J the covariance
     of its gradient under white pixel noise of variance ``noise`` (n,) in both images:
-    J = 2 sigma^2 npix sum_k alpha W^2 a a^T |R_k|^2, from the sums m (n, 3, 3) of
-    :func:`ref_spectra`. For flat weights at high SNR this is the Cramer-Rao bound
-    2 sigma^2 (sum_x g g^T)^-1 of the windowed reference (Parseval). inf where H is not
-    negative definite or the variance is not positive.
+    per bin, the texture S meets the noise of the other image twice (2 N |S|^2) and the two
+    noises meet once (N^2), so J = 2 sigma^2 npix sum_k alpha W^2 a a^T (|R_k|^2 - N_k / 2)
+    (E|R|^2 = |S|^2 + N), from the sums m (n, 3, 3) of :func:`ref_spectra`. For flat weights
+    at high SNR this is the Cramer-Rao bound 2 sigma^2 (sum_x g g^T)^-1 of the windowed
+    reference (Parseval). inf where H is not negative definite or the variance is not
+    positive.
     """
     for b in range(hess.shape[0]):
         s = 2.0 * npix * noise[b]

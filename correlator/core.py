@@ -94,6 +94,9 @@ NEWTON_STOP_PX = 1e-3
 #: this average's noise: 11 bins gave 1.21x the CRLB on the medium texture at SNR 10 and
 #: 1.6-1.9x the Knapp-Carter bound on low-contrast photographs, 31 bins 1.17x and 1.2-1.4x
 SMOOTH_FRACTION = 0.12
+#: ... and for the detection's whitening over 11 bins: selective weights (a wide average lets
+#: noise-dominated frequencies into the whitened surface and lowers the PSR of good matches)
+DETECT_SMOOTH_BINS = 11
 #: Aitken extrapolation: smallest previous move (px) and the range of move ratios it trusts
 AITKEN_MIN_PX = 0.005
 AITKEN_RATIO = (0.2, 0.9)
@@ -136,7 +139,11 @@ class CorrelatorOptions:
     joint_plane : for 'jtc', build the joint input plane explicitly (slower, as the optics do).
     psr_threshold : minimum peak-to-sidelobe ratio for a valid detection.
     max_shift_px : largest |shift| component searched; default a quarter of the block size.
-    max_crlb_px : largest predicted 1-sigma error of a valid result, px.
+    max_crlb_px : largest predicted 1-sigma error of a valid result, px. 0.15: an error of
+        0.5 px is a > 3-sigma event on an axis, so even a texture whose every block sits near
+        the limit stays below 0.5 % false-valid (0.2 gives 0.7 % on the weak texture at SNR 10,
+        whose errors are 1.14x their prediction, while it flags 85 % instead of 81 % of
+        low-contrast photographs valid with 0.2 % false-valid).
     weighting : 'snr' (Knapp-Carter weights, default) or 'flat' for the Fourier refinement.
     rewindow : give every block the passes with both windows on the common content
         (default; False keeps one FFT per block, its window bias is 0.01-0.03 px on smooth
@@ -301,7 +308,7 @@ class _Layout:
                    q, rows.astype(np.int64), cols, full, spectral.Grid.of(h, w, rows, cols),
                    np.argmax(np.c_[outer, np.ones(len(outer), bool)], axis=1).astype(np.int64),
                    int(outer.sum()), imm.astype(np.float32), float(imm.sum()),
-                   2 * max(2, round(SMOOTH_FRACTION * min(h, w))) + 1)
+                   2 * max(DETECT_SMOOTH_BINS // 2, round(SMOOTH_FRACTION * min(h, w))) + 1)
 
     @property
     def win_ref(self) -> np.ndarray:
@@ -379,6 +386,7 @@ class Correlator:
         self._ref_ok = np.zeros(n, bool)
         self._ref_spec = fftbackend.empty((n, h, k), np.complex64)
         self._ref_wconj = np.empty((n, h, k), np.complex64)
+        self._ref_ratio = np.empty((n, h, k), np.float32)
         self._ref_m = np.zeros((n, 3, 3))
         self._ref_noise = np.zeros(n)
 
@@ -388,7 +396,8 @@ class Correlator:
                                          self._ref_w[s])[1]
             fftbackend.rfft2(self._ref_w[s], self._ref_spec[s])
             self._ref_terms(self._ref_spec[s], np.full(len(blk), lay.e_ref),
-                            (self._ref_wconj[s], self._ref_m[s], self._ref_noise[s]))
+                            (self._ref_wconj[s], self._ref_ratio[s], self._ref_m[s],
+                             self._ref_noise[s]))
 
         self._parallel(ref_part, n)
         # a detection sample (decimated) is searched when its lag is within the range
@@ -399,6 +408,7 @@ class Correlator:
         # pass references, filled on demand: margins (-1: none), W conj(R), CRLB sums
         self._pass_key = np.full((n, 4), -1, np.int64)
         self._pass_wconj: np.ndarray | None = None
+        self._pass_ratio: np.ndarray | None = None
         self._pass_m = np.zeros((n, 3, 3))
         masked = o.detection == "masked" or (o.detection == "auto"
                                              and self.max_shift_px > min(h, w) / 4)
@@ -466,6 +476,7 @@ class Correlator:
                 cache = index is None or len(np.unique(idx)) == n
                 if cache and self._pass_wconj is None:
                     self._pass_wconj = np.empty_like(self._ref_wconj)
+                    self._pass_ratio = np.empty_like(self._ref_ratio)
                 parts = self._parallel(
                     lambda s: self._measure(cur_arr[s], idx[s],
                                             None if pred is None else pred[s], cache), n)
@@ -498,27 +509,29 @@ class Correlator:
         return out, _usable(stats[:, 0], stats[:, 1], stats[:, 2], stats[:, 3])
 
     def _ref_terms(self, spec: np.ndarray, energy: np.ndarray, out: tuple | None = None):
-        """W conj(R) (n, h, k), CRLB sums (n, 3, 3) and noise variance (n,) of reference
-        spectra (n, h, k) of windows with energies (n,) (or into the three arrays ``out``)."""
+        """W conj(R) (n, h, k), the detection's weights over W (n, h, k), CRLB sums (n, 3, 3)
+        and noise variance (n,) of reference spectra (n, h, k) of windows with energies (n,)
+        (or into the four arrays ``out``)."""
         lay = self._lay
         g = lay.full
         n = len(spec)
         if out is None:
-            out = (np.empty(spec.shape, np.complex64), np.zeros((n, 3, 3)), np.empty(n))
-        wconj, m, noise = out
+            out = (np.empty(spec.shape, np.complex64), np.empty(spec.shape, np.float32),
+                   np.zeros((n, 3, 3)), np.empty(n))
+        wconj, ratio, m, noise = out
         kernels.ref_spectra(spec.view(np.float32), lay.immerkaer, lay.immerkaer_norm, energy,
-                            lay.smooth, self.options.weighting == "flat", g.alpha, g.ay, g.ax,
-                            g.rows, wconj.view(np.float32), m, noise)
-        return wconj, m, noise
+                            lay.smooth, DETECT_SMOOTH_BINS, self.options.weighting == "flat",
+                            g.alpha, g.ay, g.ax, g.rows, wconj.view(np.float32), ratio, m, noise)
+        return out
 
-    def _cross(self, spec: np.ndarray, wconj: np.ndarray, rows: np.ndarray):
+    def _cross(self, spec: np.ndarray, wconj: np.ndarray, ratio: np.ndarray, rows: np.ndarray):
         """Weighted cross spectra y (n, h, k) of cur spectra against rows of ``wconj``, the
-        cur blocks' Immerkaer sums (n,) and the whitening floors (n,)."""
+        cur blocks' Immerkaer sums (n,) and the whitening floors (n,) (of ``ratio`` y)."""
         lay = self._lay
         n = len(spec)
         y = np.empty(spec.shape, np.complex64)
         noise_raw, floor = np.empty(n), np.empty(n)
-        kernels.cross_spectra(spec.view(np.float32), wconj.view(np.float32),
+        kernels.cross_spectra(spec.view(np.float32), wconj.view(np.float32), ratio,
                               np.asarray(rows, dtype=np.int64), lay.immerkaer, lay.outer_from,
                               lay.outer_n, y.view(np.float32), noise_raw, floor)
         return y, noise_raw, floor
@@ -555,7 +568,7 @@ class Correlator:
         n = len(ridx)
         cur_w, cur_ok = self._prep(cur_arr, np.arange(n), lay.wy_cur[None], lay.wx_cur[None])
         cspec = fftbackend.rfft2(cur_w)
-        y, noise_raw, floor = self._cross(cspec, self._ref_wconj, ridx)
+        y, noise_raw, floor = self._cross(cspec, self._ref_wconj, self._ref_ratio, ridx)
         noise = 0.5 * (self._ref_noise[ridx] + noise_raw / (lay.immerkaer_norm * lay.e_cur))
         ref_m = self._ref_m[ridx]
 
@@ -588,7 +601,8 @@ class Correlator:
                     d_fit if o.joint_plane else None, cache)
         else:
             if self._masked is None:
-                psr, _ = self._band_detect(y, floor, np.full((n, 2), -1, np.int64))
+                psr, _ = self._band_detect(y, self._ref_ratio, ridx, floor,
+                                           np.full((n, 2), -1, np.int64))
             if o.subpixel == "gradient":
                 shift, crlb, step = gradient.refine(self._ref0[ridx], self._cur0(cur_arr), d_fit,
                                                     o.iterations)
@@ -628,7 +642,8 @@ class Correlator:
         rngs = [np.random.default_rng(int(s)) for s in seeds]
         shift, psr = self._optical.measure(self._ref0[idx] if amplitude else self._ref_w[idx],
                                            cur0 if amplitude else cur_w, rngs, o.subpixel)
-        y, noise_raw, _ = self._cross(fftbackend.rfft2(cur_w), self._ref_wconj, idx)
+        y, noise_raw, _ = self._cross(fftbackend.rfft2(cur_w), self._ref_wconj,
+                                      self._ref_ratio, idx)
         noise = 0.5 * (self._ref_noise[idx] + noise_raw / (lay.immerkaer_norm * lay.e_cur))
         crlb = _crlb(self._ref_m[idx], noise, self._hessian(y, shift), h * w)
         valid = (self._ref_ok[idx] & cur_ok & (psr >= o.psr_threshold)
@@ -636,8 +651,10 @@ class Correlator:
                  & np.all(crlb <= o.max_crlb_px, axis=1))
         return shift, valid, np.nan_to_num(psr), crlb
 
-    def _band_detect(self, y: np.ndarray, floor: np.ndarray, given: np.ndarray):
-        """Band detection on the SNR-whitened surfaces of y (n, h, k): the integer peak
+    def _band_detect(self, y: np.ndarray, ratio: np.ndarray, rows: np.ndarray,
+                     floor: np.ndarray, given: np.ndarray):
+        """Band detection on the SNR-whitened surfaces of the detection's cross spectra
+        ``ratio`` y (n, h, k) (``ratio`` rows ``rows``): the integer peak
         within the search range (or at the decimated sample ``given`` (n, 2) where >= 0),
         returned as (PSR (n,), lag (n, 2) px with a parabolic sub-sample step) and the rival
         ratio (n,): the PSR of the best local maximum more than BAND_RIVAL_SAMPLES samples
@@ -646,7 +663,8 @@ class Correlator:
         n = len(y)
         hb, kb = len(lay.band_rows), lay.band_cols
         white = fftbackend.empty((n, hb, kb), np.complex64)
-        kernels.whiten_band(y.view(np.float32), lay.band_rows, kb, floor, white.view(np.float32))
+        kernels.whiten_band(y.view(np.float32), ratio, np.asarray(rows, dtype=np.int64),
+                            lay.band_rows, kb, floor, white.view(np.float32))
         surf = fftbackend.irfft2(white, (hb, 2 * (kb - 1)), normalise=False)
         lag, psr, rival = np.empty((n, 2)), np.empty(n), np.empty(n)
         kernels.detect(surf, self._rows_in, self._cols_in, 2, BAND_RIVAL_SAMPLES, given, lag, psr,
@@ -677,7 +695,7 @@ class Correlator:
             d[trusted], hess[trusted], step[trusted] = dp[trusted], hp[trusted], sp[trusted]
             hs, ws = len(lay.band_rows), 2 * (lay.band_cols - 1)
             given[trusted] = np.rint(dp[trusted] / lay.q).astype(np.int64) % [hs, ws]
-        psr, (d0, ratio) = self._band_detect(y, floor, given)
+        psr, (d0, ratio) = self._band_detect(y, self._ref_ratio, ridx, floor, given)
         if d_fit is not None:
             d0 = d_fit
         search = np.flatnonzero(~trusted)
@@ -702,7 +720,7 @@ class Correlator:
         lay = self._lay
         n = len(d0)
         idx = np.arange(n)
-        d, crlb, _, _ = self._common_pass(idx, ridx, cur_arr, noise, d0, cache, coarse=True)
+        d, crlb, _ = self._common_pass(idx, ridx, cur_arr, noise, d0, cache, coarse=True)
         sane = np.abs(d - d0).max(axis=1) < lay.q + 1
         idx = np.flatnonzero(np.isfinite(d).all(axis=1))
         settled = self._passes(idx, ridx, cur_arr, noise, d, crlb, np.ones(n, bool), cache)
@@ -724,7 +742,7 @@ class Correlator:
         for _ in range(COMMON_PASSES):
             if not len(idx):
                 break
-            d2, c2, step2, _ = self._common_pass(idx, ridx, cur_arr, noise, d[idx], cache)
+            d2, c2, step2 = self._common_pass(idx, ridx, cur_arr, noise, d[idx], cache)
             step = d2 - d[idx]
             p = prev[idx]
             ratio = np.divide(step, p, out=np.zeros_like(step), where=np.abs(p) > AITKEN_MIN_PX)
@@ -743,21 +761,22 @@ class Correlator:
     def _common_pass(self, idx, ridx, cur_arr, noise, d, cache, coarse: bool = False):
         """One pass of blocks ``idx`` with both windows on the content common to ref and cur
         at lags d; ``coarse``: start with two band Newton steps (d good only to a decimation
-        step). Returns (d, crlb, last Newton step, (y, floor))."""
+        step). Returns (d, crlb, last Newton step)."""
         o = self.options
         h, w = self.shape
-        y, floor, m = self._pass_spectra(idx, ridx, cur_arr, d, cache)
+        y, _, m, _ = self._pass_spectra(idx, ridx, cur_arr, d, cache)
         blk = np.arange(len(idx))
         if coarse:
             d = self._newton(y, blk, d, 2, band=True)[0]
         d2, hess, step, _ = self._newton(y, blk, d, o.iterations)
         crlb = _crlb(m, noise[idx], hess, h * w)
-        return d2, crlb, step, (y, floor)
+        return d2, crlb, step
 
     def _pass_spectra(self, idx, ridx, cur_arr, d, cache):
         """Weighted cross spectra (m, h, k) of blocks ``idx`` with ref windowed to the content
         it shares with cur at lags d (m, 2) (whole-pixel margins, :func:`_pass_margins`) and
-        cur windowed alike, moved by d; their whitening floors and CRLB sums (m, 3, 3)."""
+        cur windowed alike, moved by d; their whitening floors, CRLB sums (m, 3, 3) and the
+        detection's (ratio array, its rows)."""
         lay = self._lay
         h, w = self.shape
         mg = _pass_margins(d)
@@ -766,30 +785,30 @@ class Correlator:
         if cache:
             miss = np.flatnonzero(np.any(self._pass_key[rows] != key, axis=1))
             if len(miss):
-                wc, mm = self._pass_reference(rows[miss], mg[miss])
+                wc, ra, mm, _ = self._pass_reference(rows[miss], mg[miss])
                 self._pass_wconj[rows[miss]] = wc
+                self._pass_ratio[rows[miss]] = ra
                 self._pass_m[rows[miss]] = mm
                 self._pass_key[rows[miss]] = key[miss]
-            src, srow, m = self._pass_wconj, rows, self._pass_m[rows]
+            src, ratio, srow, m = self._pass_wconj, self._pass_ratio, rows, self._pass_m[rows]
         else:
-            src, m = self._pass_reference(rows, mg)
+            src, ratio, m, _ = self._pass_reference(rows, mg)
             srow = np.arange(len(idx))
         wy = _pass_windows(h, lay.taper[0], mg[:, 0, 0], mg[:, 0, 1], d[:, 0])
         wx = _pass_windows(w, lay.taper[1], mg[:, 1, 0], mg[:, 1, 1], d[:, 1])
         cur_w, _ = self._prep(cur_arr, idx, wy, wx)
-        y, _, floor = self._cross(fftbackend.rfft2(cur_w), src, srow)
-        return y, floor, m
+        y, _, floor = self._cross(fftbackend.rfft2(cur_w), src, ratio, srow)
+        return y, floor, m, (ratio, srow)
 
     def _pass_reference(self, rows: np.ndarray, mg: np.ndarray):
-        """W conj(R) (m, h, k) and CRLB sums (m, 3, 3) of reference blocks ``rows`` windowed
-        with zero margins mg (m, 2, 2) (their own Knapp-Carter weights)."""
+        """:meth:`_ref_terms` of reference blocks ``rows`` windowed with zero margins
+        mg (m, 2, 2) (their own Knapp-Carter weights)."""
         lay = self._lay
         h, w = self.shape
         wy = _pass_windows(h, lay.taper[0], mg[:, 0, 0], mg[:, 0, 1])
         wx = _pass_windows(w, lay.taper[1], mg[:, 1, 0], mg[:, 1, 1])
         ref_w, _ = self._prep(self._ref_in, rows, wy, wx)
-        wconj, m, _ = self._ref_terms(fftbackend.rfft2(ref_w), _energy(wy, wx))
-        return wconj, m
+        return self._ref_terms(fftbackend.rfft2(ref_w), _energy(wy, wx))
 
     def _common_psr(self, ridx, cur_arr, d, cache):
         """PSR (N,) of the whitened surface of the content common at lag ``d`` (N, 2) px, and
@@ -798,8 +817,8 @@ class Correlator:
         lay = self._lay
         h, w = self.shape
         n = len(d)
-        y, floor, _ = self._pass_spectra(np.arange(n), ridx, cur_arr, d, cache)
-        psr, (lag, _) = self._band_detect(y, floor, np.full((n, 2), -1, np.int64))
+        y, floor, _, (ratio, rows) = self._pass_spectra(np.arange(n), ridx, cur_arr, d, cache)
+        psr, (lag, _) = self._band_detect(y, ratio, rows, floor, np.full((n, 2), -1, np.int64))
         lag = lay.q * np.rint(lag / lay.q)
         size = np.array([h, w])
         diff = np.mod(lag - d + size / 2, size) - size / 2

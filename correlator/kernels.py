@@ -98,13 +98,16 @@ def prep_blocks(blocks, blk, wy, wx, weighted, out, stats):
 
 
 @nb.njit(**_JIT)
-def ref_spectra(spec, imm, imm_norm, energy, box, flat, alpha, ay, ax, rows, wconj, m, noise):
+def ref_spectra(spec, imm, imm_norm, energy, box, box_det, flat, alpha, ay, ax, rows, wconj,
+                ratio, m, noise):
     """Per reference block: noise variance, Knapp-Carter weights W, W conj(R), gradient sums.
 
     spec (n, h, k) complex64 one-sided spectra of windowed blocks; imm (h, k) Immerkaer
     weights (sum ``imm_norm``); energy (n,) each window's sum of squares. W = P / (2 P + s2),
     P: the mean of |R|^2 over ``box`` x ``box`` bins (odd; wrapped over rows, mirrored over
-    columns) less the noise power s2 per bin; ``flat``: W = 1/2. Writes wconj = W conj(R),
+    columns) less the noise power s2 per bin; ``flat``: W = 1/2. The detection's weights are
+    the same over the smaller ``box_det`` (selective, where the estimate wants low noise);
+    ratio (n, h, k) float32 = W_det / W (0 where W = 0). Writes wconj = W conj(R),
     m (n, 3, 3) float64 (the sums alpha rows a_y^i a_x^j W^2 (|R|^2 - s2 / 2), i + j <= 2: see
     :func:`crlb`) and noise (n,) pixel variance. The complex arrays (n, h, k) are passed as
     their interleaved float32 views (n, h, 2k).
@@ -118,10 +121,14 @@ def ref_spectra(spec, imm, imm_norm, energy, box, flat, alpha, ay, ax, rows, wco
     for q in range(k + 2 * r):
         jj = q - r
         mirror[q] = -jj if jj < 0 else (2 * (k - 1) - jj if jj >= k else jj)
+    rd = box_det // 2
     tmp = np.empty((h, k), np.float64)  # box sums over columns
+    tmd = np.empty((h, k), np.float64)  # the same, detection box
     t = np.empty(k, np.float64)  # running box sums over rows (float64: |R|^2 spans decades)
+    td = np.empty(k, np.float64)
     wts = np.empty(k, np.float32)
     norm = 1.0 / (box * box)
+    norm_d = 1.0 / (box_det * box_det)
     for b in range(n):
         acc = 0.0
         for i in range(h):
@@ -165,12 +172,17 @@ def ref_spectra(spec, imm, imm_norm, energy, box, flat, alpha, ay, ax, rows, wco
                 for o in range(nr):
                     for j in range(k):
                         tmp[i0 + o, j] = cs[j + box, o] - cs[j, o]
+                        tmd[i0 + o, j] = cs[j + r + rd + 1, o] - cs[j + r - rd, o]
             # ... then a running box over rows (wrapped)
             for j in range(k):
                 t[j] = 0.0
+                td[j] = 0.0
             for o in range(-r, r + 1):
                 for j in range(k):
                     t[j] += tmp[o % h, j]
+            for o in range(-rd, rd + 1):
+                for j in range(k):
+                    td[j] += tmd[o % h, j]
         for a in range(3):
             for c in range(3):
                 m[b, a, c] = 0.0
@@ -178,14 +190,22 @@ def ref_spectra(spec, imm, imm_norm, energy, box, flat, alpha, ay, ax, rows, wco
             if flat:
                 for j in range(k):
                     wts[j] = 0.5
+                    ratio[b, i, j] = 1.0
             else:
                 for j in range(k):
                     ps = max(np.float32(t[j] * norm) - s2, np.float32(0.0))
                     wts[j] = ps / (np.float32(2.0) * ps + s2 + np.float32(1e-30))
+                    pd = max(np.float32(td[j] * norm_d) - s2, np.float32(0.0))
+                    wd = pd / (np.float32(2.0) * pd + s2 + np.float32(1e-30))
+                    ratio[b, i, j] = wd / wts[j] if wts[j] > 0 else np.float32(0.0)
                 ia = (i + r + 1) % h
                 ib = (i - r) % h
                 for j in range(k):
                     t[j] += tmp[ia, j] - tmp[ib, j]
+                ia = (i + rd + 1) % h
+                ib = (i - rd) % h
+                for j in range(k):
+                    td[j] += tmd[ia, j] - tmd[ib, j]
             c0 = np.float32(0.0)
             c1 = np.float32(0.0)
             c2 = np.float32(0.0)
@@ -211,10 +231,11 @@ def ref_spectra(spec, imm, imm_norm, energy, box, flat, alpha, ay, ax, rows, wco
 
 
 @nb.njit(**_JIT)
-def cross_spectra(spec, wconj, ref_idx, imm, outer_from, outer_n, y, noise_raw, floor):
+def cross_spectra(spec, wconj, ratio, ref_idx, imm, outer_from, outer_n, y, noise_raw, floor):
     """Weighted cross spectra y = W conj(R) C of blocks ``spec`` against reference rows
     ``ref_idx`` (n,) of ``wconj``; noise_raw (n,) the Immerkaer sum of |C|^2 (divide by the
-    norm and window energy); floor (n,) the mean |y| over the outer frequencies, which start
+    norm and window energy); floor (n,) the mean |ratio y| (the detection's cross spectrum,
+    ``ratio``: rows as ``wconj``) over the outer frequencies, which start
     at column outer_from[i] of row i (``outer_n`` of them in all), at least 1e-6 of the RMS
     |y|. Complex arrays (n, h, k) are passed as their interleaved float32 views (n, h, 2k).
     """
@@ -246,26 +267,29 @@ def cross_spectra(spec, wconj, ref_idx, imm, outer_from, outer_n, y, noise_raw, 
             acc += ra
             tot += rt
             rf = np.float32(0.0)
+            ro = ratio[rb, i]
             for j in range(outer_from[i], k):
-                rf += np.sqrt(yr[2 * j] * yr[2 * j] + yr[2 * j + 1] * yr[2 * j + 1])
+                rf += ro[j] * np.sqrt(yr[2 * j] * yr[2 * j] + yr[2 * j + 1] * yr[2 * j + 1])
             fl += rf
         noise_raw[b] = acc
         floor[b] = max(fl / outer_n, 1e-6 * np.sqrt(tot / (h * k)) + 1e-30)
 
 
 @nb.njit(**_JIT)
-def whiten_band(y, band_rows, band_cols, floor, out):
-    """out (n, len(band_rows), band_cols) = central band of y / (|y| + floor), on the
-    interleaved (re, im) float32 views of y and out (so that the loop vectorises)."""
+def whiten_band(y, ratio, ref_idx, band_rows, band_cols, floor, out):
+    """out (n, len(band_rows), band_cols) = central band of x / (|x| + floor), x = ratio y
+    (``ratio`` rows ``ref_idx``), on the interleaved (re, im) float32 views of y and out (so
+    that the loop vectorises)."""
     n = y.shape[0]
     for b in range(n):
         f = np.float32(floor[b])
         for i in range(band_rows.shape[0]):
             src = y[b, band_rows[i]]
+            ro = ratio[ref_idx[b], band_rows[i]]
             dst = out[b, i]
             for j in range(band_cols):
-                re = src[2 * j]
-                im = src[2 * j + 1]
+                re = ro[j] * src[2 * j]
+                im = ro[j] * src[2 * j + 1]
                 g = np.float32(1.0) / (np.sqrt(re * re + im * im) + f)
                 dst[2 * j] = re * g
                 dst[2 * j + 1] = im * g

@@ -110,8 +110,8 @@ def _run(plan, src: np.ndarray, dst: np.ndarray) -> None:
             and dst.ctypes.data % al == 0):
         plan.update_arrays(src, dst)
         plan.execute()
-    else:
-        plan(src, dst, normalise_idft=False)
+    else:  # pyfftw scales the inverse with normalise_idft=True, the forward with False
+        plan(src, dst, normalise_idft=plan.direction == "FFTW_FORWARD")
 
 
 def rfft2(a: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:

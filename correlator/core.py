@@ -386,7 +386,8 @@ class Correlator:
         self._ref_ok = np.zeros(n, bool)
         self._ref_spec = fftbackend.empty((n, h, k), np.complex64)
         self._ref_wconj = np.empty((n, h, k), np.complex64)
-        self._ref_ratio = np.empty((n, h, k), np.float32)
+        self._ref_fw = np.empty((n, h, k), np.float32)
+        self._ref_bw = np.empty((n, len(lay.band_rows), lay.band_cols), np.float32)
         self._ref_m = np.zeros((n, 3, 3))
         self._ref_noise = np.zeros(n)
 
@@ -396,8 +397,8 @@ class Correlator:
                                          self._ref_w[s])[1]
             fftbackend.rfft2(self._ref_w[s], self._ref_spec[s])
             self._ref_terms(self._ref_spec[s], np.full(len(blk), lay.e_ref),
-                            (self._ref_wconj[s], self._ref_ratio[s], self._ref_m[s],
-                             self._ref_noise[s]))
+                            (self._ref_wconj[s], self._ref_fw[s], self._ref_bw[s],
+                             self._ref_m[s], self._ref_noise[s]))
 
         self._parallel(ref_part, n)
         # a detection sample (decimated) is searched when its lag is within the range
@@ -408,7 +409,8 @@ class Correlator:
         # pass references, filled on demand: margins (-1: none), W conj(R), CRLB sums
         self._pass_key = np.full((n, 4), -1, np.int64)
         self._pass_wconj: np.ndarray | None = None
-        self._pass_ratio: np.ndarray | None = None
+        self._pass_fw: np.ndarray | None = None
+        self._pass_bw: np.ndarray | None = None
         self._pass_m = np.zeros((n, 3, 3))
         masked = o.detection == "masked" or (o.detection == "auto"
                                              and self.max_shift_px > min(h, w) / 4)
@@ -476,7 +478,8 @@ class Correlator:
                 cache = index is None or len(np.unique(idx)) == n
                 if cache and self._pass_wconj is None:
                     self._pass_wconj = np.empty_like(self._ref_wconj)
-                    self._pass_ratio = np.empty_like(self._ref_ratio)
+                    self._pass_fw = np.empty_like(self._ref_fw)
+                    self._pass_bw = np.empty_like(self._ref_bw)
                 parts = self._parallel(
                     lambda s: self._measure(cur_arr[s], idx[s],
                                             None if pred is None else pred[s], cache), n)
@@ -509,31 +512,34 @@ class Correlator:
         return out, _usable(stats[:, 0], stats[:, 1], stats[:, 2], stats[:, 3])
 
     def _ref_terms(self, spec: np.ndarray, energy: np.ndarray, out: tuple | None = None):
-        """W conj(R) (n, h, k), the detection's weights over W (n, h, k), CRLB sums (n, 3, 3)
-        and noise variance (n,) of reference spectra (n, h, k) of windows with energies (n,)
-        (or into the four arrays ``out``)."""
+        """W conj(R) (n, h, k), the detection's weights over W at the outer frequencies
+        (n, h, k) and on the band (n, hb, kb), CRLB sums (n, 3, 3) and noise variance (n,) of
+        reference spectra (n, h, k) of windows with energies (n,) (or into the five arrays
+        ``out``)."""
         lay = self._lay
         g = lay.full
         n = len(spec)
         if out is None:
             out = (np.empty(spec.shape, np.complex64), np.empty(spec.shape, np.float32),
+                   np.empty((n, len(lay.band_rows), lay.band_cols), np.float32),
                    np.zeros((n, 3, 3)), np.empty(n))
-        wconj, ratio, m, noise = out
+        wconj, fw, bw, m, noise = out
         kernels.ref_spectra(spec.view(np.float32), lay.immerkaer, lay.immerkaer_norm, energy,
                             lay.smooth, DETECT_SMOOTH_BINS, self.options.weighting == "flat",
-                            g.alpha, g.ay, g.ax, g.rows, wconj.view(np.float32), ratio, m, noise)
+                            g.alpha, g.ay, g.ax, g.rows, lay.outer_from, lay.band_rows,
+                            wconj.view(np.float32), fw, bw, m, noise)
         return out
 
-    def _cross(self, spec: np.ndarray, wconj: np.ndarray, ratio: np.ndarray, rows: np.ndarray):
+    def _cross(self, spec: np.ndarray, wconj: np.ndarray, fw: np.ndarray, rows: np.ndarray):
         """Weighted cross spectra y (n, h, k) of cur spectra against rows of ``wconj``, the
-        cur blocks' Immerkaer sums (n,) and the whitening floors (n,) (of ``ratio`` y)."""
+        cur blocks' Immerkaer sums (n,) and the whitening floors (n,) (of ``fw`` y)."""
         lay = self._lay
         n = len(spec)
         y = np.empty(spec.shape, np.complex64)
         noise_raw, floor = np.empty(n), np.empty(n)
-        kernels.cross_spectra(spec.view(np.float32), wconj.view(np.float32), ratio,
-                              np.asarray(rows, dtype=np.int64), lay.immerkaer, lay.outer_from,
-                              lay.outer_n, y.view(np.float32), noise_raw, floor)
+        kernels.cross_spectra(spec.view(np.float32), wconj.view(np.float32), fw,
+                              np.asarray(rows, dtype=np.int64), lay.immerkaer, lay.outer_n,
+                              y.view(np.float32), noise_raw, floor)
         return y, noise_raw, floor
 
     def _newton(self, y, blk, d0, iterations: int, band: bool = False):
@@ -568,7 +574,7 @@ class Correlator:
         n = len(ridx)
         cur_w, cur_ok = self._prep(cur_arr, np.arange(n), lay.wy_cur[None], lay.wx_cur[None])
         cspec = fftbackend.rfft2(cur_w)
-        y, noise_raw, floor = self._cross(cspec, self._ref_wconj, self._ref_ratio, ridx)
+        y, noise_raw, floor = self._cross(cspec, self._ref_wconj, self._ref_fw, ridx)
         noise = 0.5 * (self._ref_noise[ridx] + noise_raw / (lay.immerkaer_norm * lay.e_cur))
         ref_m = self._ref_m[ridx]
 
@@ -601,7 +607,7 @@ class Correlator:
                     d_fit if o.joint_plane else None, cache)
         else:
             if self._masked is None:
-                psr, _ = self._band_detect(y, self._ref_ratio, ridx, floor,
+                psr, _ = self._band_detect(y, self._ref_bw, ridx, floor,
                                            np.full((n, 2), -1, np.int64))
             if o.subpixel == "gradient":
                 shift, crlb, step = gradient.refine(self._ref0[ridx], self._cur0(cur_arr), d_fit,
@@ -642,8 +648,8 @@ class Correlator:
         rngs = [np.random.default_rng(int(s)) for s in seeds]
         shift, psr = self._optical.measure(self._ref0[idx] if amplitude else self._ref_w[idx],
                                            cur0 if amplitude else cur_w, rngs, o.subpixel)
-        y, noise_raw, _ = self._cross(fftbackend.rfft2(cur_w), self._ref_wconj,
-                                      self._ref_ratio, idx)
+        y, noise_raw, _ = self._cross(fftbackend.rfft2(cur_w), self._ref_wconj, self._ref_fw,
+                                      idx)
         noise = 0.5 * (self._ref_noise[idx] + noise_raw / (lay.immerkaer_norm * lay.e_cur))
         crlb = _crlb(self._ref_m[idx], noise, self._hessian(y, shift), h * w)
         valid = (self._ref_ok[idx] & cur_ok & (psr >= o.psr_threshold)
@@ -651,10 +657,10 @@ class Correlator:
                  & np.all(crlb <= o.max_crlb_px, axis=1))
         return shift, valid, np.nan_to_num(psr), crlb
 
-    def _band_detect(self, y: np.ndarray, ratio: np.ndarray, rows: np.ndarray,
+    def _band_detect(self, y: np.ndarray, bw: np.ndarray, rows: np.ndarray,
                      floor: np.ndarray, given: np.ndarray):
         """Band detection on the SNR-whitened surfaces of the detection's cross spectra
-        ``ratio`` y (n, h, k) (``ratio`` rows ``rows``): the integer peak
+        ``bw`` y (n, h, k) on the band (``bw`` rows ``rows``): the integer peak
         within the search range (or at the decimated sample ``given`` (n, 2) where >= 0),
         returned as (PSR (n,), lag (n, 2) px with a parabolic sub-sample step) and the rival
         ratio (n,): the PSR of the best local maximum more than BAND_RIVAL_SAMPLES samples
@@ -663,7 +669,7 @@ class Correlator:
         n = len(y)
         hb, kb = len(lay.band_rows), lay.band_cols
         white = fftbackend.empty((n, hb, kb), np.complex64)
-        kernels.whiten_band(y.view(np.float32), ratio, np.asarray(rows, dtype=np.int64),
+        kernels.whiten_band(y.view(np.float32), bw, np.asarray(rows, dtype=np.int64),
                             lay.band_rows, kb, floor, white.view(np.float32))
         surf = fftbackend.irfft2(white, (hb, 2 * (kb - 1)), normalise=False)
         lag, psr, rival = np.empty((n, 2)), np.empty(n), np.empty(n)
@@ -695,7 +701,7 @@ class Correlator:
             d[trusted], hess[trusted], step[trusted] = dp[trusted], hp[trusted], sp[trusted]
             hs, ws = len(lay.band_rows), 2 * (lay.band_cols - 1)
             given[trusted] = np.rint(dp[trusted] / lay.q).astype(np.int64) % [hs, ws]
-        psr, (d0, ratio) = self._band_detect(y, self._ref_ratio, ridx, floor, given)
+        psr, (d0, ratio) = self._band_detect(y, self._ref_bw, ridx, floor, given)
         if d_fit is not None:
             d0 = d_fit
         search = np.flatnonzero(~trusted)
@@ -776,7 +782,7 @@ class Correlator:
         """Weighted cross spectra (m, h, k) of blocks ``idx`` with ref windowed to the content
         it shares with cur at lags d (m, 2) (whole-pixel margins, :func:`_pass_margins`) and
         cur windowed alike, moved by d; their whitening floors, CRLB sums (m, 3, 3) and the
-        detection's (ratio array, its rows)."""
+        detection's band weights (array, its rows)."""
         lay = self._lay
         h, w = self.shape
         mg = _pass_margins(d)
@@ -785,20 +791,22 @@ class Correlator:
         if cache:
             miss = np.flatnonzero(np.any(self._pass_key[rows] != key, axis=1))
             if len(miss):
-                wc, ra, mm, _ = self._pass_reference(rows[miss], mg[miss])
+                wc, fw, bw, mm, _ = self._pass_reference(rows[miss], mg[miss])
                 self._pass_wconj[rows[miss]] = wc
-                self._pass_ratio[rows[miss]] = ra
+                self._pass_fw[rows[miss]] = fw
+                self._pass_bw[rows[miss]] = bw
                 self._pass_m[rows[miss]] = mm
                 self._pass_key[rows[miss]] = key[miss]
-            src, ratio, srow, m = self._pass_wconj, self._pass_ratio, rows, self._pass_m[rows]
+            src, fw, bw = self._pass_wconj, self._pass_fw, self._pass_bw
+            srow, m = rows, self._pass_m[rows]
         else:
-            src, ratio, m, _ = self._pass_reference(rows, mg)
+            src, fw, bw, m, _ = self._pass_reference(rows, mg)
             srow = np.arange(len(idx))
         wy = _pass_windows(h, lay.taper[0], mg[:, 0, 0], mg[:, 0, 1], d[:, 0])
         wx = _pass_windows(w, lay.taper[1], mg[:, 1, 0], mg[:, 1, 1], d[:, 1])
         cur_w, _ = self._prep(cur_arr, idx, wy, wx)
-        y, _, floor = self._cross(fftbackend.rfft2(cur_w), src, ratio, srow)
-        return y, floor, m, (ratio, srow)
+        y, _, floor = self._cross(fftbackend.rfft2(cur_w), src, fw, srow)
+        return y, floor, m, (bw, srow)
 
     def _pass_reference(self, rows: np.ndarray, mg: np.ndarray):
         """:meth:`_ref_terms` of reference blocks ``rows`` windowed with zero margins
@@ -817,8 +825,8 @@ class Correlator:
         lay = self._lay
         h, w = self.shape
         n = len(d)
-        y, floor, _, (ratio, rows) = self._pass_spectra(np.arange(n), ridx, cur_arr, d, cache)
-        psr, (lag, _) = self._band_detect(y, ratio, rows, floor, np.full((n, 2), -1, np.int64))
+        y, floor, _, (bw, rows) = self._pass_spectra(np.arange(n), ridx, cur_arr, d, cache)
+        psr, (lag, _) = self._band_detect(y, bw, rows, floor, np.full((n, 2), -1, np.int64))
         lag = lay.q * np.rint(lag / lay.q)
         size = np.array([h, w])
         diff = np.mod(lag - d + size / 2, size) - size / 2

@@ -98,16 +98,18 @@ def prep_blocks(blocks, blk, wy, wx, weighted, out, stats):
 
 
 @nb.njit(**_JIT)
-def ref_spectra(spec, imm, imm_norm, energy, box, box_det, flat, alpha, ay, ax, rows, wconj,
-                ratio, m, noise):
+def ref_spectra(spec, imm, imm_norm, energy, box, box_det, flat, alpha, ay, ax, rows,
+                outer_from, band_rows, wconj, fw, bw, m, noise):
     """Per reference block: noise variance, Knapp-Carter weights W, W conj(R), gradient sums.
 
     spec (n, h, k) complex64 one-sided spectra of windowed blocks; imm (h, k) Immerkaer
     weights (sum ``imm_norm``); energy (n,) each window's sum of squares. W = P / (2 P + s2),
     P: the mean of |R|^2 over ``box`` x ``box`` bins (odd; wrapped over rows, mirrored over
     columns) less the noise power s2 per bin; ``flat``: W = 1/2. The detection's weights are
-    the same over the smaller ``box_det`` (selective, where the estimate wants low noise);
-    ratio (n, h, k) float32 = W_det / W (0 where W = 0). Writes wconj = W conj(R),
+    the same over the smaller ``box_det`` (selective, where the estimate wants low noise),
+    kept as their ratio to W (0 where W = 0): fw (n, h, k) float32 that ratio at the outer
+    frequencies (from column outer_from[i] of row i; 0 elsewhere), bw (n, len(band_rows),
+    band columns) float32 that ratio on the central band. Writes wconj = W conj(R),
     m (n, 3, 3) float64 (the sums alpha rows a_y^i a_x^j W^2 (|R|^2 - s2 / 2), i + j <= 2: see
     :func:`crlb`) and noise (n,) pixel variance. The complex arrays (n, h, k) are passed as
     their interleaved float32 views (n, h, 2k).
@@ -122,6 +124,11 @@ def ref_spectra(spec, imm, imm_norm, energy, box, box_det, flat, alpha, ay, ax, 
         jj = q - r
         mirror[q] = -jj if jj < 0 else (2 * (k - 1) - jj if jj >= k else jj)
     rd = box_det // 2
+    kb = bw.shape[2]
+    band_of = np.full(h, -1, np.int64)  # row of the band array holding spectrum row i
+    for q in range(band_rows.shape[0]):
+        band_of[band_rows[q]] = q
+    ratio = np.empty(k, np.float32)
     tmp = np.empty((h, k), np.float64)  # box sums over columns
     tmd = np.empty((h, k), np.float64)  # the same, detection box
     t = np.empty(k, np.float64)  # running box sums over rows (float64: |R|^2 spans decades)
@@ -190,14 +197,14 @@ def ref_spectra(spec, imm, imm_norm, energy, box, box_det, flat, alpha, ay, ax, 
             if flat:
                 for j in range(k):
                     wts[j] = 0.5
-                    ratio[b, i, j] = 1.0
+                    ratio[j] = 1.0
             else:
                 for j in range(k):
                     ps = max(np.float32(t[j] * norm) - s2, np.float32(0.0))
                     wts[j] = ps / (np.float32(2.0) * ps + s2 + np.float32(1e-30))
                     pd = max(np.float32(td[j] * norm_d) - s2, np.float32(0.0))
                     wd = pd / (np.float32(2.0) * pd + s2 + np.float32(1e-30))
-                    ratio[b, i, j] = wd / wts[j] if wts[j] > 0 else np.float32(0.0)
+                    ratio[j] = wd / wts[j] if wts[j] > 0 else np.float32(0.0)
                 ia = (i + r + 1) % h
                 ib = (i - r) % h
                 for j in range(k):
@@ -206,6 +213,11 @@ def ref_spectra(spec, imm, imm_norm, energy, box, box_det, flat, alpha, ay, ax, 
                 ib = (i - rd) % h
                 for j in range(k):
                     td[j] += tmd[ia, j] - tmd[ib, j]
+            for j in range(k):
+                fw[b, i, j] = ratio[j] if j >= outer_from[i] else np.float32(0.0)
+            if band_of[i] >= 0:
+                for j in range(kb):
+                    bw[b, band_of[i], j] = ratio[j]
             c0 = np.float32(0.0)
             c1 = np.float32(0.0)
             c2 = np.float32(0.0)
@@ -231,13 +243,12 @@ def ref_spectra(spec, imm, imm_norm, energy, box, box_det, flat, alpha, ay, ax, 
 
 
 @nb.njit(**_JIT)
-def cross_spectra(spec, wconj, ratio, ref_idx, imm, outer_from, outer_n, y, noise_raw, floor):
+def cross_spectra(spec, wconj, fw, ref_idx, imm, outer_n, y, noise_raw, floor):
     """Weighted cross spectra y = W conj(R) C of blocks ``spec`` against reference rows
     ``ref_idx`` (n,) of ``wconj``; noise_raw (n,) the Immerkaer sum of |C|^2 (divide by the
-    norm and window energy); floor (n,) the mean |ratio y| (the detection's cross spectrum,
-    ``ratio``: rows as ``wconj``) over the outer frequencies, which start
-    at column outer_from[i] of row i (``outer_n`` of them in all), at least 1e-6 of the RMS
-    |y|. Complex arrays (n, h, k) are passed as their interleaved float32 views (n, h, 2k).
+    norm and window energy); floor (n,) the mean of |fw y| (the detection's cross spectrum at
+    the ``outer_n`` outer frequencies, fw: rows as ``wconj``, 0 elsewhere), at least 1e-6 of
+    the RMS |y|. Complex arrays (n, h, k) are passed as their interleaved float32 views (n, h, 2k).
     """
     n, h, k2 = spec.shape
     k = k2 // 2
@@ -249,10 +260,12 @@ def cross_spectra(spec, wconj, ratio, ref_idx, imm, outer_from, outer_n, y, nois
         for i in range(h):
             c = spec[b, i]
             wc = wconj[rb, i]
+            f = fw[rb, i]
             yr = y[b, i]
             mi = imm[i]
             ra = np.float32(0.0)
             rt = np.float32(0.0)
+            rf = np.float32(0.0)
             for j in range(k):
                 cr = c[2 * j]
                 ci = c[2 * j + 1]
@@ -263,29 +276,27 @@ def cross_spectra(spec, wconj, ratio, ref_idx, imm, outer_from, outer_n, y, nois
                 vi = wr * ci + wi * cr
                 yr[2 * j] = vr
                 yr[2 * j + 1] = vi
-                rt += vr * vr + vi * vi
+                a2 = vr * vr + vi * vi
+                rt += a2
+                rf += f[j] * np.sqrt(a2)
             acc += ra
             tot += rt
-            rf = np.float32(0.0)
-            ro = ratio[rb, i]
-            for j in range(outer_from[i], k):
-                rf += ro[j] * np.sqrt(yr[2 * j] * yr[2 * j] + yr[2 * j + 1] * yr[2 * j + 1])
             fl += rf
         noise_raw[b] = acc
         floor[b] = max(fl / outer_n, 1e-6 * np.sqrt(tot / (h * k)) + 1e-30)
 
 
 @nb.njit(**_JIT)
-def whiten_band(y, ratio, ref_idx, band_rows, band_cols, floor, out):
-    """out (n, len(band_rows), band_cols) = central band of x / (|x| + floor), x = ratio y
-    (``ratio`` rows ``ref_idx``), on the interleaved (re, im) float32 views of y and out (so
-    that the loop vectorises)."""
+def whiten_band(y, bw, ref_idx, band_rows, band_cols, floor, out):
+    """out (n, len(band_rows), band_cols) = central band of x / (|x| + floor), x = bw y (bw:
+    the band's detection weights, rows ``ref_idx``), on the interleaved (re, im) float32 views
+    of y and out (so that the loop vectorises)."""
     n = y.shape[0]
     for b in range(n):
         f = np.float32(floor[b])
         for i in range(band_rows.shape[0]):
             src = y[b, band_rows[i]]
-            ro = ratio[ref_idx[b], band_rows[i]]
+            ro = bw[ref_idx[b], i]
             dst = out[b, i]
             for j in range(band_cols):
                 re = ro[j] * src[2 * j]

@@ -76,8 +76,13 @@ def texture_pairs(n: int, block_px: int, rng: np.random.Generator, *, snr: float
     scale = (tc.contrast * MEAN_LEVEL) / a.std(axis=(1, 2), keepdims=True)
     o = (size - block_px) // 2
     win = (slice(None), slice(o, o + block_px), slice(o, o + block_px))
-    clean = a[win] * scale + MEAN_LEVEL
-    cur = b[win] * scale + MEAN_LEVEL
+    return _noisy(a[win] * scale + MEAN_LEVEL, b[win] * scale + MEAN_LEVEL, d, rng, snr,
+                  return_clean)
+
+
+def _noisy(clean: np.ndarray, cur: np.ndarray, d: np.ndarray, rng: np.random.Generator,
+           snr: float, return_clean: bool):
+    """(ref, cur) float32 with independent noise of sigma = 100 / snr on each, d, [clean]."""
     ref = clean
     if np.isfinite(snr):
         sigma = MEAN_LEVEL / snr
@@ -154,12 +159,5 @@ def image_pairs(images, n: int, block_px: int, rng: np.random.Generator, *,
         gain = MEAN_LEVEL / mean
     else:
         gain = contrast * MEAN_LEVEL / np.maximum(a.std(axis=(1, 2), keepdims=True), 1e-12)
-    clean = (a - mean) * gain + MEAN_LEVEL
-    cur = (b - mean) * gain + MEAN_LEVEL
-    ref = clean
-    if np.isfinite(snr):
-        sigma = MEAN_LEVEL / snr
-        ref = ref + rng.normal(0.0, sigma, ref.shape)
-        cur = cur + rng.normal(0.0, sigma, cur.shape)
-    out = (ref.astype(np.float32), cur.astype(np.float32), d)
-    return (*out, clean) if return_clean else out
+    return _noisy((a - mean) * gain + MEAN_LEVEL, (b - mean) * gain + MEAN_LEVEL, d, rng, snr,
+                  return_clean)

@@ -58,7 +58,7 @@ import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from functools import cached_property, lru_cache
+from functools import lru_cache
 
 import numpy as np
 import scipy.fft as sfft
@@ -97,6 +97,8 @@ SMOOTH_FRACTION = 0.12
 #: ... and for the detection's whitening over 11 bins: selective weights (a wide average lets
 #: noise-dominated frequencies into the whitened surface and lowers the PSR of good matches)
 DETECT_SMOOTH_BINS = 11
+#: blocks per chunk of work (a 128^2 block's arrays take ~0.4 MB: 16 of them stay in L2/L3)
+CHUNK_BLOCKS = 16
 #: Aitken extrapolation: smallest previous move (px) and the range of move ratios it trusts
 AITKEN_MIN_PX = 0.005
 AITKEN_RATIO = (0.2, 0.9)
@@ -391,16 +393,8 @@ class Correlator:
         self._ref_m = np.zeros((n, 3, 3))
         self._ref_noise = np.zeros(n)
 
-        def ref_part(s: slice) -> None:
-            blk = np.arange(s.start, s.stop)
-            self._ref_ok[s] = self._prep(self._ref_in, blk, lay.wy_ref[None], lay.wx_ref[None],
-                                         self._ref_w[s])[1]
-            fftbackend.rfft2(self._ref_w[s], self._ref_spec[s])
-            self._ref_terms(self._ref_spec[s], np.full(len(blk), lay.e_ref),
-                            (self._ref_wconj[s], self._ref_fw[s], self._ref_bw[s],
-                             self._ref_m[s], self._ref_noise[s]))
-
-        self._parallel(ref_part, n)
+        # computed per chunk just before its first measurement (while it is in cache)
+        self._ref_ready = np.zeros(n, bool)
         # a detection sample (decimated) is searched when its lag is within the range
         hs, ws = len(lay.band_rows), 2 * (lay.band_cols - 1)
         lim = self.max_shift_px / lay.q + 0.5
@@ -414,6 +408,11 @@ class Correlator:
         self._pass_m = np.zeros((n, 3, 3))
         masked = o.detection == "masked" or (o.detection == "auto"
                                              and self.max_shift_px > min(h, w) / 4)
+        # unwindowed reference blocks less their means: for the masked search, Lucas-Kanade
+        # and the optical emulation (made here, never by the worker threads)
+        self._ref0 = None
+        if masked or o.subpixel == "gradient" or o.method == "optical":
+            self._ref0 = _sanitise(self._ref_in)[0]
         self._masked = None
         if masked and o.method != "optical":
             # bins of half the band's decimation (2 px for 256^2 blocks): finer bins find
@@ -432,14 +431,31 @@ class Correlator:
     def n_blocks(self) -> int:
         return self._ref_in.shape[0]
 
-    @cached_property
-    def _ref0(self) -> np.ndarray:
-        """Reference blocks less their means, unwindowed (fits, masked search, optical)."""
-        return _sanitise(self._ref_in)[0]
-
-    @cached_property
-    def _ref_conj(self) -> np.ndarray:
-        return np.conj(self._ref_spec)
+    def _ensure_ref(self, rows: np.ndarray) -> None:
+        """Compute the reference terms of blocks ``rows`` not computed yet: window, spectrum,
+        W conj(R), detection weights, CRLB sums, noise. A worker thread only ever computes
+        rows of its own chunk (the rows of a call with repeated blocks are made before the
+        threads start), so no thread reads a row another is writing."""
+        todo = np.unique(rows[~self._ref_ready[rows]])
+        if not len(todo):
+            return
+        lay = self._lay
+        arrays = (self._ref_w, self._ref_spec, self._ref_wconj, self._ref_fw, self._ref_bw,
+                  self._ref_m, self._ref_noise)
+        if todo[-1] - todo[0] + 1 == len(todo):  # a run of blocks: write in place
+            sel = slice(todo[0], todo[-1] + 1)
+            out = [a[sel] for a in arrays]
+        else:
+            out = [np.empty((len(todo), *a.shape[1:]), a.dtype) for a in arrays]
+        ref_w, spec, *terms = out
+        _, ok = self._prep(self._ref_in, todo, lay.wy_ref[None], lay.wx_ref[None], ref_w)
+        fftbackend.rfft2(ref_w, spec)
+        self._ref_terms(spec, np.full(len(todo), lay.e_ref), tuple(terms))
+        if todo[-1] - todo[0] + 1 != len(todo):
+            for a, o in zip(arrays, out, strict=True):
+                a[todo] = o
+        self._ref_ok[todo] = ok
+        self._ref_ready[todo] = True
 
     # ------------------------------------------------------------------------- public
     def measure(self, cur: np.ndarray, rng: np.random.Generator | None = None,
@@ -476,6 +492,9 @@ class Correlator:
             else:
                 # pass references are cached per reference block: only when no block repeats
                 cache = index is None or len(np.unique(idx)) == n
+                if not cache:  # repeated rows: make their reference terms before the threads
+                    rows = np.unique(idx)
+                    self._parallel(lambda s: self._ensure_ref(rows[s]), len(rows))
                 if cache and self._pass_wconj is None:
                     self._pass_wconj = np.empty_like(self._ref_wconj)
                     self._pass_fw = np.empty_like(self._ref_fw)
@@ -492,8 +511,8 @@ class Correlator:
     def _parallel(self, fn, n: int) -> list:
         """``fn`` of each chunk (a slice) of a stack of n blocks, on the worker threads."""
         chunks = self._chunks(n)
-        if len(chunks) == 1:
-            return [fn(chunks[0])]
+        if len(chunks) == 1 or self._threads == 1:
+            return [fn(c) for c in chunks]
         # one BLAS thread per worker: the per-block matrix products are small, and nested
         # BLAS threads on top of ours would oversubscribe the cores
         with _blas().limit(limits=1, user_api="blas"):
@@ -561,8 +580,10 @@ class Correlator:
         return self._newton(y, np.arange(len(y)), d, 1)[1]
 
     def _chunks(self, n: int) -> list[slice]:
-        """Split the stack over threads when each part keeps >= 4 blocks."""
-        k = max(1, min(self._threads, n // 4))
+        """Split the stack into chunks of at most CHUNK_BLOCKS blocks (a chunk's arrays stay in
+        the core's cache from one step to the next), and over the threads when each part keeps
+        >= 4 blocks."""
+        k = max(1, -(-n // CHUNK_BLOCKS), min(self._threads, n // 4))
         edges = np.linspace(0, n, k + 1).astype(int)
         return [slice(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
 
@@ -572,6 +593,7 @@ class Correlator:
         o, lay = self.options, self._lay
         h, w = self.shape
         n = len(ridx)
+        self._ensure_ref(ridx)
         cur_w, cur_ok = self._prep(cur_arr, np.arange(n), lay.wy_cur[None], lay.wx_cur[None])
         cspec = fftbackend.rfft2(cur_w)
         y, noise_raw, floor = self._cross(cspec, self._ref_wconj, self._ref_fw, ridx)
@@ -586,7 +608,7 @@ class Correlator:
             psr = np.zeros(n)
         fits = ("parabolic", "gaussian", "com", "gradient")
         if o.subpixel in fits or o.joint_plane:
-            surf = self._method_surface(self._ref_conj[ridx] * cspec, cur_w, ridx)
+            surf = self._method_surface(np.conj(self._ref_spec[ridx]) * cspec, cur_w, ridx)
             if self._masked is not None:  # fit around the detected lag (may exceed h / 2)
                 base = np.rint(d0).astype(int)
                 jy, jx = base[:, 0] % h, base[:, 1] % w
@@ -641,6 +663,7 @@ class Correlator:
         (what an ideal estimator would reach), for comparison and the texture check."""
         o, lay = self.options, self._lay
         h, w = self.shape
+        self._ensure_ref(idx)
         cur_w, cur_ok = self._prep(cur_arr, np.arange(len(idx)), lay.wy_cur[None],
                                    lay.wx_cur[None])
         amplitude = o.optical.on("slm_amplitude")

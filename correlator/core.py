@@ -97,8 +97,8 @@ SMOOTH_FRACTION = 0.12
 #: ... and for the detection's whitening over 11 bins: selective weights (a wide average lets
 #: noise-dominated frequencies into the whitened surface and lowers the PSR of good matches)
 DETECT_SMOOTH_BINS = 11
-#: blocks per chunk of work (a 128^2 block's arrays take ~0.4 MB: 16 of them stay in L2/L3)
-CHUNK_BLOCKS = 16
+#: blocks per chunk of work (a 128^2 block's arrays take ~0.4 MB; 32 measured fastest here)
+CHUNK_BLOCKS = 32
 #: Aitken extrapolation: smallest previous move (px) and the range of move ratios it trusts
 AITKEN_MIN_PX = 0.005
 AITKEN_RATIO = (0.2, 0.9)

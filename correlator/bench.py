@@ -224,21 +224,25 @@ def speed_table(rng, repeats: int = 7, block_px: int = 128, n_track: int = 64,
                      "per_s": rate, "note": note})
 
     rt, ct, pt = ref[:n_track], cur[:n_track], pred[:n_track]
-    for rewindow in (False, True):
-        mode = "precise" if rewindow else "1 FFT/block"
-        for trusted in (False, True):
-            c = Correlator(rt, rewindow=rewindow, trust_prediction_px=1.0 if trusted else None)
-            call = ((lambda c=c: c.measure(ct, predicted=pt)) if trusted
-                    else (lambda c=c: c.measure(ct)))
-            note = (f"prediction trusted (error {PRED_SIGMA_PX} px rms)" if trusted
-                    else "integer search")
-            add(f"imcsim tracking, {mode}", "tracking", cores,
-                _median_rate(call, n_track, repeats), note)
-    for rewindow in (False, True):
-        mode = "precise" if rewindow else "1 FFT/block"
-        add(f"imcsim measure_shift, {mode}", "independent pairs", cores,
-            _median_rate(lambda rw=rewindow: measure_shift(ref, cur, rewindow=rw), n_pairs,
-                         repeats), f"{n_pairs} pairs per call")
+    for threads in sorted({cores, 1}, reverse=True):
+        workers = -1 if threads == cores else 1
+        for rewindow in (False, True):
+            mode = "precise" if rewindow else "1 FFT/block"
+            for trusted in (False, True):
+                c = Correlator(rt, rewindow=rewindow, workers=workers,
+                               trust_prediction_px=1.0 if trusted else None)
+                call = ((lambda c=c: c.measure(ct, predicted=pt)) if trusted
+                        else (lambda c=c: c.measure(ct)))
+                note = (f"prediction trusted (error {PRED_SIGMA_PX} px rms)" if trusted
+                        else "integer search")
+                add(f"imcsim tracking, {mode}", "tracking", threads,
+                    _median_rate(call, n_track, repeats), note)
+        for rewindow in (False, True):
+            mode = "precise" if rewindow else "1 FFT/block"
+            add(f"imcsim measure_shift, {mode}", "independent pairs", threads,
+                _median_rate(lambda rw=rewindow, wk=workers: measure_shift(
+                    ref, cur, rewindow=rw, workers=wk), n_pairs, repeats),
+                f"{n_pairs} pairs per call")
     r64, c64 = ref.astype(np.float64), cur.astype(np.float64)  # the peers' native type
     for threads in sorted({1, cores}):
         for name, fn in peers(threads, hann=True).items():

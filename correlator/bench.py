@@ -13,19 +13,34 @@ Definitions, per row:
   the table got right;
 - bias: the larger per-axis mean error over successful pairs, px;
 - RMS/CRLB: RMS over the RMS of the textbook bound 2 sigma^2 (sum g g^T)^-1 of the same pairs;
-- pairs/s: independent pairs (each reference new), wall clock, this machine.
+- pairs/s: independent pairs (each reference new), wall clock, this machine (the speed table
+  below is the careful comparison).
+
+Speed table (:func:`speed_table`): 128^2 pairs at SNR 10, every figure the median of several
+timed runs made in the same process: ours tracking (references fixed, 64 blocks per call; with
+and without a trusted prediction), ours on independent pairs (``measure_shift`` on stacks of
+256), the peers one pair per call on one thread and on a pool of as many threads as cores
+(OpenCV ``phaseCorrelate`` float64 with its Hann window made once; scikit-image
+``phase_cross_correlation``), and the FFT bound: one forward and one inverse 128^2 transform
+per pair with our backend. Natural textures (:func:`natural_tables`, needs scikit-image):
+photographs of ``skimage.data`` scaled to a std of 12 % of their mean (coverage at SNR 10),
+and the two most textured ones at their own contrast at SNR 1.6 (RMS over all pairs).
 """
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
+from correlator import fftbackend
 from correlator.core import Correlator, measure_shift
-from correlator.testimages import MEAN_LEVEL, crlb_px, texture_pairs
+from correlator.testimages import MEAN_LEVEL, crlb_px, image_pairs, texture_pairs
 
 Estimator = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
@@ -38,35 +53,60 @@ def ours(**options) -> Estimator:
     return run
 
 
-def peers() -> dict[str, Estimator]:
-    """scikit-image and OpenCV estimators, where installed (the ``bench`` extra)."""
+def _per_pair(one: Callable, threads: int) -> Estimator:
+    """An estimator calling ``one(ref, cur) -> (d_row, d_col)`` once per pair, on the calling
+    thread or on a pool of ``threads`` (made once, as a user's service would)."""
+    pool = ThreadPoolExecutor(threads) if threads > 1 else None
+
+    def run(ref, cur):
+        pairs = list(zip(ref, cur, strict=True))
+        # one BLAS thread per caller thread (scikit-image's upsampling is a matrix product)
+        with threadpool_limits(1, user_api="blas"):
+            out = (list(pool.map(lambda rc: one(*rc), pairs)) if pool
+                   else [one(r, c) for r, c in pairs])
+        return np.array(out, dtype=np.float64).reshape(-1, 2), np.ones(len(ref), bool)
+
+    return run
+
+
+def peers(threads: int = 1, hann: bool | None = None) -> dict[str, Estimator]:
+    """scikit-image and OpenCV estimators, where installed (the ``bench`` extra), one pair per
+    call on one thread or on a pool of ``threads``. OpenCV runs in its native float64 with its
+    own parallelism off and, with ``hann``, the Hann window made once per block shape; None:
+    both with and without the window."""
     out: dict[str, Estimator] = {}
+    pool = f", {threads}-thread pool" if threads > 1 else ""
     try:
         from skimage.registration import phase_cross_correlation
 
-        def skimage_run(ref, cur):
+        def skimage_one(r, c):
             # skimage returns the shift that registers moving (cur) onto reference: -d
-            s = np.array([phase_cross_correlation(r, c, upsample_factor=100,
-                                                  normalization=None)[0]
-                          for r, c in zip(ref, cur, strict=True)])
-            return -s, np.ones(len(ref), bool)
+            return -phase_cross_correlation(r, c, upsample_factor=100, normalization=None)[0]
 
-        out["scikit-image phase_cross_correlation (upsample 100)"] = skimage_run
+        out[f"scikit-image phase_cross_correlation (upsample 100){pool}"] = _per_pair(
+            skimage_one, threads)
     except ImportError:
         pass
     try:
         import cv2
 
-        def cv_run(ref, cur, window=False):
-            win = cv2.createHanningWindow(ref.shape[1:][::-1], cv2.CV_64F) if window else None
-            s = []
-            for r, c in zip(ref.astype(np.float64), cur.astype(np.float64), strict=True):
-                (dx, dy), _ = cv2.phaseCorrelate(r, c, win)
-                s.append((dy, dx))
-            return np.array(s), np.ones(len(ref), bool)
+        cv2.setNumThreads(1)
+        windows: dict[tuple, np.ndarray] = {}
 
-        out["OpenCV phaseCorrelate"] = cv_run
-        out["OpenCV phaseCorrelate + Hann"] = lambda r, c: cv_run(r, c, True)
+        def cv_one(r, c, window):
+            win = None
+            if window:
+                key = r.shape
+                if key not in windows:
+                    windows[key] = cv2.createHanningWindow(r.shape[::-1], cv2.CV_64F)
+                win = windows[key]
+            (dx, dy), _ = cv2.phaseCorrelate(np.asarray(r, np.float64), np.asarray(c, np.float64),
+                                             win)
+            return dy, dx
+
+        for window in ((False, True) if hann is None else (hann,)):
+            name = "OpenCV phaseCorrelate" + (" + Hann" if window else "") + pool
+            out[name] = _per_pair(lambda r, c, w=window: cv_one(r, c, w), threads)
     except ImportError:
         pass
     return out
@@ -151,22 +191,125 @@ def noise_only(n: int, block_px: int, rng) -> float:
     return 100.0 * float(measure_shift(a, b).valid.mean())
 
 
-def tracking_speed(block_px: int, n_blocks: int, repeats: int, rng) -> list[dict]:
-    """Correlations/s against fixed references (spectra reused), fast and precise, 1-2 threads."""
-    ref, cur, _ = texture_pairs(n_blocks, block_px, rng, snr=10.0)
+#: prediction error (px, per axis, 1 sigma) of the tracking runs that trust a prediction
+PRED_SIGMA_PX = 0.2
+#: natural textures: photographs of skimage.data (grey or RGB averaged)
+PHOTOS = ("camera", "astronaut", "moon", "coffee", "chelsea", "brick", "grass", "gravel")
+#: the well-textured ones (SNR 1.6 table)
+TEXTURED_PHOTOS = ("grass", "gravel")
+
+
+def _median_rate(fn: Callable[[], object], n: int, repeats: int) -> float:
+    """n / the median wall time of ``repeats`` calls of fn (after one warm-up call)."""
+    fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return n / float(np.median(times))
+
+
+def speed_table(rng, repeats: int = 7, block_px: int = 128, n_track: int = 64,
+                n_pairs: int = 256) -> list[dict]:
+    """Pairs (or correlations) per second of ours and the peers on the same 128^2 pairs at
+    SNR 10, all cores, medians of ``repeats`` runs, and the FFT bound (see the module doc)."""
+    cores = os.cpu_count() or 1
+    ref, cur, d = texture_pairs(n_pairs, block_px, rng, snr=10.0)
+    pred = d + rng.normal(0.0, PRED_SIGMA_PX, d.shape)
     rows = []
-    for rewindow in (False, True):
-        for workers in (1, -1):
-            c = Correlator(ref, rewindow=rewindow, workers=workers)
-            c.measure(cur)
-            t0 = time.perf_counter()
-            for _ in range(repeats):
-                c.measure(cur)
-            rate = repeats * n_blocks / (time.perf_counter() - t0)
-            rows.append({"mode": "precise" if rewindow else "1 FFT/block",
-                         "threads": "all" if workers == -1 else 1, "block_px": block_px,
-                         "correlations_per_s": rate})
+
+    def add(name, kind, threads, rate, note=""):
+        rows.append({"estimator": name, "kind": kind, "threads": threads, "block_px": block_px,
+                     "per_s": rate, "note": note})
+
+    rt, ct, pt = ref[:n_track], cur[:n_track], pred[:n_track]
+    for threads in sorted({cores, 1}, reverse=True):
+        workers = -1 if threads == cores else 1
+        for rewindow in (False, True):
+            mode = "precise" if rewindow else "1 FFT/block"
+            for trusted in (False, True):
+                c = Correlator(rt, rewindow=rewindow, workers=workers,
+                               trust_prediction_px=1.0 if trusted else None)
+                call = ((lambda c=c: c.measure(ct, predicted=pt)) if trusted
+                        else (lambda c=c: c.measure(ct)))
+                note = (f"prediction trusted (error {PRED_SIGMA_PX} px rms)" if trusted
+                        else "integer search")
+                add(f"imcsim tracking, {mode}", "tracking", threads,
+                    _median_rate(call, n_track, repeats), note)
+        for rewindow in (False, True):
+            mode = "precise" if rewindow else "1 FFT/block"
+            add(f"imcsim measure_shift, {mode}", "independent pairs", threads,
+                _median_rate(lambda rw=rewindow, wk=workers: measure_shift(
+                    ref, cur, rewindow=rw, workers=wk), n_pairs, repeats),
+                f"{n_pairs} pairs per call")
+    r64, c64 = ref.astype(np.float64), cur.astype(np.float64)  # the peers' native type
+    for threads in sorted({1, cores}):
+        for name, fn in peers(threads, hann=True).items():
+            n = n_pairs if "OpenCV" in name else n_pairs // 4  # scikit-image is slow
+            add(name, "independent pairs", threads,
+                _median_rate(lambda fn=fn, n=n: fn(r64[:n], c64[:n]), n, repeats),
+                "one pair per call")
+    # the FFT bound: one forward and one inverse transform per pair, our backend
+    x = fftbackend.empty(ref.shape, np.float32)
+    x[...] = ref
+
+    def ffts(part):
+        spec = fftbackend.rfft2(x[part])
+        fftbackend.irfft2(spec, x.shape[1:])
+
+    for threads in sorted({1, cores}):
+        parts = [slice(a, b) for a, b in zip(np.linspace(0, n_pairs, threads + 1).astype(int)[:-1],
+                                             np.linspace(0, n_pairs, threads + 1).astype(int)[1:],
+                                             strict=True)]
+        with ThreadPoolExecutor(threads) as ex:
+            rate = _median_rate(lambda ex=ex, parts=parts: list(ex.map(ffts, parts)), n_pairs,
+                                repeats)
+        add(f"FFT bound ({fftbackend.backend()} float32)", "bound", threads, rate,
+            "1 forward + 1 inverse per pair")
     return rows
+
+
+def _photos(names) -> list[np.ndarray]:
+    """The named skimage.data photographs as grey float arrays."""
+    import skimage.data
+
+    out = []
+    for name in names:
+        im = np.asarray(getattr(skimage.data, name)(), dtype=np.float64)
+        out.append(im.mean(axis=-1) if im.ndim == 3 else im)
+    return out
+
+
+def natural_tables(n: int, rng, block_px: int = 128) -> dict:
+    """Coverage on low-contrast photographs (std 12 % of the mean, SNR 10) and accuracy over all
+    pairs on the textured ones at SNR 1.6, ours and the peers on the same pairs."""
+    low = [(im - im.mean()) / im.std() * 0.12 * MEAN_LEVEL + MEAN_LEVEL
+           for im in _photos(PHOTOS)]
+    ref, cur, d = image_pairs(low, n, block_px, rng, snr=10.0)
+    est = {"imcsim (default)": ours(), **peers(1, hann=None)}
+    cover = []
+    for name, fn in est.items():
+        shift, valid = fn(ref, cur)
+        err = np.abs(shift - d).max(axis=1)
+        cover.append({"estimator": name, "within_pct": 100.0 * float((err < 0.5).mean()),
+                      "valid_pct": 100.0 * float(valid.mean()),
+                      "valid_within_pct": 100.0 * float((valid & (err < 0.5)).mean()),
+                      "false_valid_pct": 100.0 * float((valid & (err >= 0.5)).mean())})
+    ref, cur, d, clean = image_pairs(_photos(TEXTURED_PHOTOS), n, block_px, rng, snr=1.6,
+                                     return_clean=True)
+    bound = float(np.sqrt(np.mean(crlb_px(clean, MEAN_LEVEL / 1.6) ** 2)))
+    est = {"imcsim (default, precise)": ours(), "imcsim 1 FFT/block": ours(rewindow=False),
+           **peers(1, hann=None)}
+    snr16 = []
+    for name, fn in est.items():
+        shift, valid = fn(ref, cur)
+        err = shift - d
+        snr16.append({"estimator": name, "rms_all_px": float(np.sqrt(np.mean(err**2))),
+                      "valid_pct": 100.0 * float(valid.mean()),
+                      "outliers": int((np.abs(err).max(axis=1) >= 0.5).sum())})
+    return {"coverage": cover, "snr16": snr16, "pairs": n, "photos": PHOTOS,
+            "textured": TEXTURED_PHOTOS, "snr16_crlb_px": bound}
 
 
 def markdown(results: dict) -> str:
@@ -184,11 +327,27 @@ def markdown(results: dict) -> str:
                          f"{r['false_valid_pct']:.1f} % | {r['bias_px']:.4f} | "
                          f"{r['pairs_per_s']:.0f} |")
         lines.append("")
-    lines += ["### Tracking (references fixed, spectra reused)", "",
-              "| block | mode | threads | correlations/s |", "|---|---|---|---|"]
-    for r in results["tracking"]:
-        lines.append(f"| {r['block_px']}² | {r['mode']} | {r['threads']} | "
-                     f"{r['correlations_per_s']:.0f} |")
+    lines += ["### Speed, 128² pairs at SNR 10 (medians of repeated runs, this machine)", "",
+              "| estimator | kind | threads | per second | note |", "|---|---|---|---|---|"]
+    for r in results["speed"]:
+        lines.append(f"| {r['estimator']} | {r['kind']} | {r['threads']} | {r['per_s']:.0f} | "
+                     f"{r['note']} |")
+    nat = results.get("natural")
+    if nat:
+        lines += ["", f"### Low-contrast photographs (std 12 % of the mean), SNR 10, "
+                      f"{nat['pairs']} pairs from {', '.join(nat['photos'])}", "",
+                  "| estimator | within 0.5 px | flagged valid | valid and within | "
+                  "false-valid |", "|---|---|---|---|---|"]
+        for r in nat["coverage"]:
+            lines.append(f"| {r['estimator']} | {r['within_pct']:.1f} % | {r['valid_pct']:.1f} % "
+                         f"| {r['valid_within_pct']:.1f} % | {r['false_valid_pct']:.2f} % |")
+        lines += ["", f"### Textured photographs ({', '.join(nat['textured'])}, own contrast), "
+                      f"SNR 1.6: error over all pairs (CRLB {nat['snr16_crlb_px']:.4f} px)", "",
+                  "| estimator | RMS over all pairs (px) | flagged valid | errors >= 0.5 px |",
+                  "|---|---|---|---|"]
+        for r in nat["snr16"]:
+            lines.append(f"| {r['estimator']} | {r['rms_all_px']:.4f} | {r['valid_pct']:.1f} % | "
+                         f"{r['outliers']} |")
     lines += ["", f"Noise-only pairs flagged valid: {results['noise_only_valid_pct']:.2f} %", ""]
     lines += ["### Block size x SNR (imcsim default)", "",
               "| block | SNR | CRLB (px) | RMS (px) | success | false-valid |",
@@ -263,16 +422,22 @@ def run(out: Path, pairs: int = 300, quick: bool = False, seed: int = 0,
         log(f"methods at {block}², SNR {snr:g}, {tex} texture ...")
         rows, meta = method_table(pairs, block, snr, tex, rng)
         tables.append({"meta": meta, "rows": rows})
-    log("tracking speed ...")
-    tracking = tracking_speed(128, 64, 3 if quick else 10, rng)
+    log("speed ...")
+    speed = speed_table(rng, repeats=3 if quick else 7)
+    log("natural textures ...")
+    try:
+        natural = natural_tables(max(100, pairs), rng)
+    except ImportError:
+        log("scikit-image not installed (pip install -e '.[bench]'): no natural textures")
+        natural = None
     log("noise-only false alarms ...")
     fa = noise_only(200 if quick else 1000, 128, rng)
     log("block size x SNR curves ...")
     blocks = (32, 64, 128) if quick else (32, 64, 128, 256)
     snrs = (0.5, 1.6, 10.0, 100.0) if quick else (0.5, 1.0, 1.6, 3.0, 10.0, 30.0, 100.0)
     cv = curves(max(50, pairs // 3), blocks, snrs, "strong", rng)
-    results = {"method_tables": tables, "tracking": tracking, "noise_only_valid_pct": fa,
-               "curves": cv}
+    results = {"method_tables": tables, "speed": speed, "natural": natural,
+               "noise_only_valid_pct": fa, "curves": cv}
     write_json(out / "correlator.json", results)
     md = markdown(results)
     atomic_write(out / "correlator.md", lambda p: p.write_text(md))

@@ -3,32 +3,44 @@
 Sign convention (docs/conventions.md): ``shift = (d_row, d_col)`` is the displacement of
 ``cur``'s content relative to ``ref``: cur(x) ~ ref(x - d).
 
-Pipeline for a stack of N block pairs (no Python loop over blocks):
+Pipeline for a stack of N block pairs (no Python loop over blocks; the per-block work runs in
+compiled kernels, :mod:`correlator.kernels`, on threads over the stack; FFTs through
+:mod:`correlator.fftbackend`, FFTW where installed):
 
 1. windows: ref gets a flat-top (Tukey) window that is zero within a margin m of its edges,
    cur one tapered only at its edges. For |d| <= m every ref sample meets a cur sample under
    a flat window, so the correlation of the windowed pair is exactly the correlation of the
-   scene: no window bias, and ref's spectrum is computed once (:class:`Correlator`).
+   scene: no window bias. Each block first loses its window-weighted mean. The reference's
+   spectrum, noise level, weights and gradient sums are computed once (:class:`Correlator`).
 2. one FFT of each cur block; cross spectrum X = conj(R) C (``jtc``: the joint transform
    correlator's cross term, through the joint input plane with ``joint_plane=True``).
 3. detection: a decimated surface from the central band of the SNR-whitened spectrum
-   X / (|X| + noise floor); its integer peak within the search range and its peak-to-sidelobe
-   ratio (PSR), the normalised statistic on which the seed paper's threshold is applied.
-   Searches beyond a quarter block use the overlap-normalised correlation of the zero-padded
-   blocks instead (:mod:`correlator.masked`: no alias at d - B, no clutter from unshared
-   content), the PSR of the common content's surface, and a rival-peak test for ambiguity.
+   X / (|X| + noise floor); its integer peak within the search range, its peak-to-sidelobe
+   ratio (PSR), the normalised statistic on which the seed paper's threshold is applied, and
+   the PSR of its best rival peak (an ambiguous match, a repeated or one-directional pattern,
+   has a rival almost as high). Searches beyond a quarter block use the overlap-normalised
+   correlation of the zero-padded blocks instead (:mod:`correlator.masked`: no alias at
+   d - B, no clutter from unshared content), the PSR of the common content's surface, and the
+   masked score's rival-peak test. With a trusted prediction (``trust_prediction_px``,
+   ``Correlator.measure(predicted=...)``) Newton starts from the prediction instead; the
+   search runs only for blocks whose result is not settled within that distance of it.
 4. sub-pixel: ``fourier`` (default): Newton's method on the continuous correlation evaluated
    from the spectrum (exact band-limited interpolation), first on the central band, then on the
    full band with Knapp-Carter SNR weights; blocks moved by more than m (or all, with
-   ``rewindow=True``) get passes with both windows centred on the common content (each
-   block less its window mean), repeated to their fixed point (Aitken-accelerated).
-   ``gradient``: symmetric Lucas-Kanade on cubic B-splines. ``parabolic``, ``gaussian``,
-   ``com`` (the paper's centre of mass): 3-point fits on the method's full surface.
+   ``rewindow=True``) get passes with both windows on the common content: ref's zero within
+   whole-pixel margins that hold the shift, cur's the same moved by the estimate (each block
+   less its window mean). A block's pass reference is kept while its margins hold, so a
+   tracker pays one cur FFT per pass. The passes repeat to their fixed point
+   (Aitken-accelerated). ``gradient``: symmetric Lucas-Kanade on cubic B-splines.
+   ``parabolic``, ``gaussian``, ``com`` (the paper's centre of mass): 3-point fits on the
+   method's full surface.
 5. ``crlb``: the predicted 1-sigma error H^-1 J H^-1 of this estimate from the pair's own
    spectra and the noise level (estimated from the highest frequencies), equal to the
    Cramer-Rao bound 2 sigma^2 (sum g g^T)^-1 for flat weights at high SNR.
-6. validity: PSR above the threshold, texture and finite input, a concave converged peak and a
-   predicted error below ``max_crlb_px`` (so an error of 0.5 px is a > 3-sigma event).
+6. validity: PSR above the threshold, no rival peak near the best, texture and finite input,
+   a concave peak that is settled (last Newton step and last pass move small against the
+   block's own predicted error) and a predicted error below ``max_crlb_px`` (so an error of
+   0.5 px is a > 3-sigma event).
 
 References
 ----------
@@ -43,6 +55,7 @@ Janschek, Tchernykh, Dyblenko, "Performances of image motion tracking with optic
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
@@ -51,7 +64,7 @@ import numpy as np
 import scipy.fft as sfft
 from threadpoolctl import ThreadpoolController
 
-from correlator import gradient, jtc, peaks, spectral
+from correlator import fftbackend, gradient, jtc, kernels, peaks, spectral
 from correlator.masked import MaskedDetector
 from correlator.optical import JtocModel, OpticalJtc
 
@@ -66,9 +79,36 @@ COMMON_PASSES = 6
 COMMON_PASS_TOL_PX = 0.002
 #: a block whose last pass still moved it by more than this is not converged
 COMMON_PASS_MAX_MOVE_PX = 0.02
+#: the same two limits relative to the block's own predicted error (crlb): a block stops
+#: repeating once a pass moves it by less than PASS_TOL_REL crlb, and it is settled when its
+#: last Newton step and last pass moved it by at most SETTLED_REL crlb (an unsettled remainder
+#: of 0.25 sigma adds at most 6 % to the error variance); the larger limit applies
+PASS_TOL_REL = 0.05
+SETTLED_REL = 0.25
+#: last Newton step (px) of a settled block, at the least
+NEWTON_TOL_PX = 0.01
+#: Newton stops after a step below this (px): what is left is ~1e-6 px (quadratic convergence)
+NEWTON_STOP_PX = 1e-3
+#: the reference power is averaged over a box of 2 round(f B) + 1 bins (B: the block size)
+#: for the Knapp-Carter weights: 31 bins at 128^2. The weights' efficiency at low SNR is set by
+#: this average's noise: 11 bins gave 1.21x the CRLB on the medium texture at SNR 10 and
+#: 1.6-1.9x the Knapp-Carter bound on low-contrast photographs, 31 bins 1.17x and 1.2-1.4x
+SMOOTH_FRACTION = 0.12
+#: ... and for the detection's whitening over 11 bins: selective weights (a wide average lets
+#: noise-dominated frequencies into the whitened surface and lowers the PSR of good matches)
+DETECT_SMOOTH_BINS = 11
+#: blocks per chunk of work (a 128^2 block's arrays take ~0.4 MB; 32 measured fastest here)
+CHUNK_BLOCKS = 32
 #: Aitken extrapolation: smallest previous move (px) and the range of move ratios it trusts
 AITKEN_MIN_PX = 0.005
 AITKEN_RATIO = (0.2, 0.9)
+#: band detection: a rival is a local maximum more than this many decimated samples from the
+#: peak (the whitened peak is one to two samples wide)
+BAND_RIVAL_SAMPLES = 2
+#: band detection: a result is ambiguous when its best rival's PSR reaches this fraction of
+#: its own (rivals of textured pairs stay below 0.5 of the peak; the repeats of a periodic
+#: pattern and the ridge of a one-directional one reach 0.8-1.0)
+BAND_MAX_RIVAL_RATIO = 0.7
 
 
 @dataclass(frozen=True)
@@ -101,11 +141,15 @@ class CorrelatorOptions:
     joint_plane : for 'jtc', build the joint input plane explicitly (slower, as the optics do).
     psr_threshold : minimum peak-to-sidelobe ratio for a valid detection.
     max_shift_px : largest |shift| component searched; default a quarter of the block size.
-    max_crlb_px : largest predicted 1-sigma error of a valid result, px.
+    max_crlb_px : largest predicted 1-sigma error of a valid result, px. 0.15: an error of
+        0.5 px is a > 3-sigma event on an axis, so even a texture whose every block sits near
+        the limit stays below 0.5 % false-valid (0.2 gives 0.7 % on the weak texture at SNR 10,
+        whose errors are 1.14x their prediction, while it flags 85 % instead of 81 % of
+        low-contrast photographs valid with 0.2 % false-valid).
     weighting : 'snr' (Knapp-Carter weights, default) or 'flat' for the Fourier refinement.
-    rewindow : give every block the second pass with both windows on the common content
-        (default; ~2x slower; False keeps one FFT per block, its window bias is 0.01-0.03 px
-        on smooth textures).
+    rewindow : give every block the passes with both windows on the common content
+        (default; False keeps one FFT per block, its window bias is 0.01-0.03 px on smooth
+        textures).
     iterations : Newton (fourier) or Lucas-Kanade (gradient) iterations.
     workers : threads over the block stack (-1: all cores).
     optical : the hardware model of method 'optical' (default: :class:`JtocModel`()).
@@ -119,7 +163,13 @@ class CorrelatorOptions:
     max_rival_ratio : 'masked' detection only: a result is invalid when another local maximum
         of the overlap-normalised score reaches this fraction of the best (an ambiguous match:
         one straight edge, a repeated pattern). 0.94 keeps > 99 % of the correct matches on
-        rendered rural and mountain scenes while rejecting the ambiguous ones.
+        rendered rural and mountain scenes while rejecting the ambiguous ones. (The band
+        detection's test is :data:`BAND_MAX_RIVAL_RATIO` on the PSR scale.)
+    trust_prediction_px : None (default): predictions are not used by the correlator.
+        A distance, px: ``Correlator.measure(predicted=...)`` (and ``BlockTracker.update``
+        with a prediction) starts Newton from the predicted shift and skips the integer search
+        for every block whose result settles within this distance of its prediction; the
+        others are searched as usual. Needs subpixel 'fourier' and the band detection.
     """
 
     method: str = "jtc"
@@ -137,6 +187,7 @@ class CorrelatorOptions:
     detection: str = "auto"
     min_overlap: float = 0.25
     max_rival_ratio: float = 0.94
+    trust_prediction_px: float | None = None
 
     def __post_init__(self) -> None:
         if self.subpixel is None:
@@ -163,6 +214,13 @@ class CorrelatorOptions:
             raise ValueError(f"min_overlap must be within (0, 1], got {self.min_overlap}")
         if not 0.0 < self.max_rival_ratio <= 1.0:
             raise ValueError(f"max_rival_ratio must be within (0, 1], got {self.max_rival_ratio}")
+        if self.trust_prediction_px is not None:
+            if not self.trust_prediction_px > 0:
+                raise ValueError(f"trust_prediction_px must be > 0, got "
+                                 f"{self.trust_prediction_px}")
+            if self.subpixel != "fourier" or self.joint_plane or self.detection == "masked":
+                raise ValueError("trust_prediction_px needs subpixel='fourier', no joint plane "
+                                 "and the band detection")
 
 
 def _as_stack(a: np.ndarray, name: str) -> np.ndarray:
@@ -175,15 +233,14 @@ def _as_stack(a: np.ndarray, name: str) -> np.ndarray:
         raise ValueError(f"{name} must be (H, W) or (N, H, W), got shape {np.shape(a)}")
     if arr.shape[1] < 16 or arr.shape[2] < 16:
         raise ValueError(f"{name} blocks must be at least 16x16, got {arr.shape[1:]}")
+    if arr.dtype not in (np.float32, np.float64):
+        arr = arr.astype(np.float32)  # the kernels are compiled for these two
     return arr
 
 
 def _sanitise(blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Zero-mean float32 blocks (non-finite pixels zeroed) and a per-block 'usable' flag.
-
-    Unusable: any non-finite pixel, no texture (std below 1e-6 of the level), or saturated
-    (more than half the pixels at the block maximum).
-    """
+    """Zero-mean float32 blocks (non-finite pixels zeroed) and a per-block 'usable' flag
+    (see :func:`_usable`); for the surfaces and fits that work on unwindowed blocks."""
     b = blocks.astype(np.float32, copy=False)
     mean = b.mean(axis=(1, 2), dtype=np.float64)
     finite = np.isfinite(mean)
@@ -195,8 +252,14 @@ def _sanitise(blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     std = np.sqrt(np.einsum("ij,ij->i", flat, flat, dtype=np.float64) / flat.shape[1])
     top = flat.max(axis=1)
     saturated = np.count_nonzero(flat >= top[:, None], axis=1) > flat.shape[1] // 2
-    usable = finite & (std > 1e-6 * np.maximum(np.abs(mean), 1.0)) & ~saturated
-    return clean, usable
+    return clean, _usable(mean, std, ~finite, saturated)
+
+
+def _usable(mean, std, nonfinite, saturated) -> np.ndarray:
+    """Unusable: any non-finite pixel, no texture (std below 1e-6 of the level), or saturated
+    (more than half the pixels at the block maximum)."""
+    return ((np.asarray(nonfinite) == 0) & (std > 1e-6 * np.maximum(np.abs(mean), 1.0))
+            & (np.asarray(saturated) == 0))
 
 
 @dataclass(frozen=True)
@@ -206,52 +269,76 @@ class _Layout:
     h: int
     w: int
     margin: tuple[int, int]
-    win_ref: np.ndarray
-    win_cur: np.ndarray
     taper: tuple[float, float]
+    wy_ref: np.ndarray
+    wx_ref: np.ndarray
+    wy_cur: np.ndarray
+    wx_cur: np.ndarray
+    e_ref: float
+    e_cur: float
     q: int
     band_rows: np.ndarray
     band_cols: int
     full: spectral.Grid
     band: spectral.Grid
-    outer: np.ndarray
+    outer_from: np.ndarray
     outer_n: int
     immerkaer: np.ndarray
     immerkaer_norm: float
+    smooth: int
 
     @classmethod
     def of(cls, h: int, w: int) -> _Layout:
         m = (max(2, h // 32), max(2, w // 32))
         tc = m
         tr = (max(2, h // 16), max(2, w // 16))
-        win_ref = np.outer(spectral.tukey_1d(h, tr[0], m[0] + tc[0]),
-                           spectral.tukey_1d(w, tr[1], m[1] + tc[1]))
-        win_cur = np.outer(spectral.tukey_1d(h, tc[0]), spectral.tukey_1d(w, tc[1]))
+        wy_ref = spectral.tukey_1d(h, tr[0], m[0] + tc[0])
+        wx_ref = spectral.tukey_1d(w, tr[1], m[1] + tc[1])
+        wy_cur = spectral.tukey_1d(h, tc[0])
+        wx_cur = spectral.tukey_1d(w, tc[1])
         q = max(1, min(h, w) // 64)
         rows, cols = spectral.low_band(h, w, q)
         fy = np.abs(sfft.fftfreq(h))[:, None]
         fx = sfft.rfftfreq(w)[None, :]
-        outer = (np.hypot(fy, fx) > 0.35).astype(np.float32)
+        outer = np.hypot(fy, fx) > 0.35
         full = spectral.Grid.of(h, w)
         ay = full.ay[:, None]
         ax = full.ax[None, :]
         imm = ((2 - 2 * np.cos(ay)) * (2 - 2 * np.cos(ax))) ** 2 * full.alpha * full.rows[:, None]
-        # on the interleaved (re, im) float32 view of a spectrum: |F|^2-weighted sums as matvecs
-        imm2 = np.repeat(imm, 2, axis=1).reshape(-1).astype(np.float32)
-        return cls(h, w, m, win_ref, win_cur, tr, q, rows, cols, full,
-                   spectral.Grid.of(h, w, rows, cols), outer.reshape(-1), int(outer.sum()),
-                   imm2, float(imm.sum()))
+        return cls(h, w, m, tr, wy_ref, wx_ref, wy_cur, wx_cur,
+                   float(_energy(wy_ref, wx_ref)), float(_energy(wy_cur, wx_cur)),
+                   q, rows.astype(np.int64), cols, full, spectral.Grid.of(h, w, rows, cols),
+                   np.argmax(np.c_[outer, np.ones(len(outer), bool)], axis=1).astype(np.int64),
+                   int(outer.sum()), imm.astype(np.float32), float(imm.sum()),
+                   2 * max(DETECT_SMOOTH_BINS // 2, round(SMOOTH_FRACTION * min(h, w))) + 1)
+
+    @property
+    def win_ref(self) -> np.ndarray:
+        return np.outer(self.wy_ref, self.wx_ref)
+
+    @property
+    def win_cur(self) -> np.ndarray:
+        return np.outer(self.wy_cur, self.wx_cur)
 
 
-def _noise_var(spec: np.ndarray, win_energy, lay: _Layout) -> np.ndarray:
-    """Pixel noise variance (N,) from one-sided spectra (N, h, k) of windowed blocks.
+def _energy(wy: np.ndarray, wx: np.ndarray) -> np.ndarray:
+    """Sum of squares of separable windows wy (..., h) x wx (..., w)."""
+    return ((wy.astype(np.float64) ** 2).sum(axis=-1)
+            * (wx.astype(np.float64) ** 2).sum(axis=-1))
 
-    The high-pass energy of Immerkaer's operator (its response peaks at the corner
-    frequencies, where band-limited imagery has almost no texture), normalised by the
-    operator's gain and the window energy ``win_energy``.
-    """
-    v = np.ascontiguousarray(spec).view(np.float32).reshape(len(spec), -1)
-    return ((v * v) @ lay.immerkaer).astype(np.float64) / (lay.immerkaer_norm * win_energy)
+
+def _pass_margins(d: np.ndarray) -> np.ndarray:
+    """Whole-pixel zero margins (n, 2, 2) [axis, (low, high)] of the reference window of a
+    common-content pass at shifts d (n, 2): the content ref shares with cur(x) = ref(x - d)."""
+    return np.stack([np.ceil(np.maximum(-d, 0.0)), np.ceil(np.maximum(d, 0.0))],
+                    axis=-1).astype(np.int64)
+
+
+def _pass_windows(n: int, taper: float, lo: np.ndarray, hi: np.ndarray,
+                  shift: np.ndarray | float = 0.0) -> np.ndarray:
+    """Tukey windows (m, n) zero within lo (m,) px of the start and hi (m,) of the end,
+    moved by ``shift`` px."""
+    return spectral.tukey_1d(n, taper, 0.5 * (lo + hi), 0.5 * (lo - hi) + shift)
 
 
 class Correlator:
@@ -264,6 +351,12 @@ class Correlator:
     rng : noise of the emulated optical correlator's sensors (method 'optical' only); default
         ``np.random.default_rng(0)``. Each ``measure`` draws one child seed per block from it, so
         results do not depend on how the stack is split over threads.
+
+    Notes
+    -----
+    A Correlator keeps each block's latest common-content reference (its spectrum for the
+    window margins of the last pass), so a tracker re-uses it from frame to frame; calls to
+    ``measure`` on one instance are serialised by a lock.
 
     Examples
     --------
@@ -278,126 +371,244 @@ class Correlator:
     def __init__(self, ref: np.ndarray, options: CorrelatorOptions | None = None,
                  rng: np.random.Generator | None = None, **kwargs):
         self.options = options or CorrelatorOptions(**kwargs)
-        self._single = np.ndim(ref) == 2
-        ref_arr = _as_stack(ref, "ref")
-        n, h, w = ref_arr.shape
-        self.shape = (h, w)
-        self._lay = _Layout.of(h, w)
-        m = self.options.max_shift_px
-        self.max_shift_px = float(min(h, w) // 4 if m is None else m)
-        self._ref0, self._ref_ok = _sanitise(ref_arr)
-        self._ref_w = self._ref0 * self._lay.win_ref
-        self._ref_spec = sfft.rfft2(self._ref_w, workers=1)
-        self._ref_conj = np.conj(self._ref_spec)
-        self._ref_pow = (self._ref_spec.real**2 + self._ref_spec.imag**2).astype(np.float32)
-        e_ref = float((self._lay.win_ref**2).sum())
-        self._ref_noise = _noise_var(self._ref_spec, e_ref, self._lay)
-        self._ref_wts = self._weights(self._ref_pow, self._ref_noise, e_ref)
-        self._ref_wconj = (self._ref_wts * self._ref_conj).astype(np.complex64)
-        self._ref_m = spectral.gradient_power(self._ref_wts, self._ref_pow, self._lay.full)
-        self._e_cur = float((self._lay.win_cur**2).sum())
         o = self.options
+        self._single = np.ndim(ref) == 2
+        self._ref_in = _as_stack(ref, "ref")
+        n, h, w = self._ref_in.shape
+        self.shape = (h, w)
+        self._lay = lay = _Layout.of(h, w)
+        m = o.max_shift_px
+        self.max_shift_px = float(min(h, w) // 4 if m is None else m)
+        nw = o.workers
+        self._threads = (os.cpu_count() or 1) if nw == -1 else max(1, int(nw))
+        self._lock = threading.Lock()
+        # ---- the reference, once: windowed spectrum, noise, weights W conj(R), CRLB sums
+        k = w // 2 + 1
+        self._ref_w = fftbackend.empty((n, h, w), np.float32)
+        self._ref_ok = np.zeros(n, bool)
+        self._ref_spec = fftbackend.empty((n, h, k), np.complex64)
+        self._ref_wconj = np.empty((n, h, k), np.complex64)
+        self._ref_fw = np.empty((n, h, k), np.float32)
+        self._ref_bw = np.empty((n, len(lay.band_rows), lay.band_cols), np.float32)
+        self._ref_m = np.zeros((n, 3, 3))
+        self._ref_noise = np.zeros(n)
+
+        # computed per chunk just before its first measurement (while it is in cache)
+        self._ref_ready = np.zeros(n, bool)
+        # a detection sample (decimated) is searched when its lag is within the range
+        hs, ws = len(lay.band_rows), 2 * (lay.band_cols - 1)
+        lim = self.max_shift_px / lay.q + 0.5
+        self._rows_in = np.flatnonzero(np.abs(_lag(np.arange(hs), hs)) <= lim)
+        self._cols_in = np.flatnonzero(np.abs(_lag(np.arange(ws), ws)) <= lim)
+        # pass references, filled on demand: margins (-1: none), W conj(R), CRLB sums
+        self._pass_key = np.full((n, 4), -1, np.int64)
+        self._pass_wconj: np.ndarray | None = None
+        self._pass_fw: np.ndarray | None = None
+        self._pass_bw: np.ndarray | None = None
+        self._pass_m = np.zeros((n, 3, 3))
         masked = o.detection == "masked" or (o.detection == "auto"
                                              and self.max_shift_px > min(h, w) / 4)
+        # unwindowed reference blocks less their means: for the masked search, Lucas-Kanade
+        # and the optical emulation (made here, never by the worker threads)
+        self._ref0 = None
+        if masked or o.subpixel == "gradient" or o.method == "optical":
+            self._ref0 = _sanitise(self._ref_in)[0]
         self._masked = None
         if masked and o.method != "optical":
             # bins of half the band's decimation (2 px for 256^2 blocks): finer bins find
             # the right lag on low-texture, edge-dominated blocks more often
             self._masked = MaskedDetector(self._ref0, self.max_shift_px, o.min_overlap,
-                                          max(1, self._lay.q // 2))
+                                          max(1, lay.q // 2))
+        if o.trust_prediction_px is not None and self._masked is not None:
+            raise ValueError("trust_prediction_px needs the band detection (max_shift_px up "
+                             "to a quarter block, or detection='band')")
         self._optical = None
-        if self.options.method == "optical":
-            self._optical = OpticalJtc(self.options.optical, h, w, self.max_shift_px)
+        if o.method == "optical":
+            self._optical = OpticalJtc(o.optical, h, w, self.max_shift_px)
             self._rng = rng if rng is not None else np.random.default_rng(0)
-        nw = self.options.workers
-        self._threads = (os.cpu_count() or 1) if nw == -1 else max(1, int(nw))
 
     @property
     def n_blocks(self) -> int:
-        return self._ref0.shape[0]
+        return self._ref_in.shape[0]
+
+    def _ensure_ref(self, rows: np.ndarray) -> None:
+        """Compute the reference terms of blocks ``rows`` not computed yet: window, spectrum,
+        W conj(R), detection weights, CRLB sums, noise. A worker thread only ever computes
+        rows of its own chunk (the rows of a call with repeated blocks are made before the
+        threads start), so no thread reads a row another is writing."""
+        todo = np.unique(rows[~self._ref_ready[rows]])
+        if not len(todo):
+            return
+        lay = self._lay
+        arrays = (self._ref_w, self._ref_spec, self._ref_wconj, self._ref_fw, self._ref_bw,
+                  self._ref_m, self._ref_noise)
+        if todo[-1] - todo[0] + 1 == len(todo):  # a run of blocks: write in place
+            sel = slice(todo[0], todo[-1] + 1)
+            out = [a[sel] for a in arrays]
+        else:
+            out = [np.empty((len(todo), *a.shape[1:]), a.dtype) for a in arrays]
+        ref_w, spec, *terms = out
+        _, ok = self._prep(self._ref_in, todo, lay.wy_ref[None], lay.wx_ref[None], ref_w)
+        fftbackend.rfft2(ref_w, spec)
+        self._ref_terms(spec, np.full(len(todo), lay.e_ref), tuple(terms))
+        if todo[-1] - todo[0] + 1 != len(todo):
+            for a, o in zip(arrays, out, strict=True):
+                a[todo] = o
+        self._ref_ok[todo] = ok
+        self._ref_ready[todo] = True
 
     # ------------------------------------------------------------------------- public
     def measure(self, cur: np.ndarray, rng: np.random.Generator | None = None,
-                index: np.ndarray | None = None) -> ShiftResult:
+                index: np.ndarray | None = None,
+                predicted: np.ndarray | None = None) -> ShiftResult:
         """Shifts of ``cur`` blocks (same shape as ref) relative to the reference blocks.
 
         ``rng``: the optical emulation's noise for this call (default: the instance's).
         ``index``: measure only these reference blocks (``cur`` then holds just them).
+        ``predicted``: (n, 2) or (2,) expected shifts, px; used with
+        ``options.trust_prediction_px`` (see :class:`CorrelatorOptions`).
         """
         cur_arr = _as_stack(cur, "cur")
         idx = np.arange(self.n_blocks) if index is None else np.asarray(index, dtype=int)
         n = len(idx)
-        if cur_arr.shape[1:] != self._ref0.shape[1:] or cur_arr.shape[0] not in (1, n):
+        if cur_arr.shape[1:] != self._ref_in.shape[1:] or cur_arr.shape[0] not in (1, n):
             raise ValueError(f"cur shape {np.shape(cur)} does not match the reference blocks "
-                             f"{(n, *self._ref0.shape[1:])}")
+                             f"{(n, *self._ref_in.shape[1:])}")
         if cur_arr.shape[0] != n:
-            cur_arr = np.broadcast_to(cur_arr, (n, *self._ref0.shape[1:]))
+            cur_arr = np.broadcast_to(cur_arr, (n, *self._ref_in.shape[1:]))
+        pred = None
+        if predicted is not None:
+            if self.options.trust_prediction_px is None:
+                raise ValueError("predicted needs options.trust_prediction_px (how far the "
+                                 "prediction is trusted)")
+            pred = np.broadcast_to(np.asarray(predicted, dtype=np.float64), (n, 2))
         if n == 0:
             z = np.zeros((0, 2))
             return ShiftResult(z, np.zeros(0, bool), np.zeros(0), z.copy())
-        if self._optical is not None:  # one pass: the emulation threads its FFTs itself
-            seeds = (rng if rng is not None else self._rng).integers(0, 2**63 - 1, size=n)
-            parts = [self._measure_optical(cur_arr, seeds, idx)]
-        else:
-            # reference blocks of each chunk: a slice (no copy) unless a subset was asked for
-            def ref_sel(s: slice):
-                return s if index is None else idx[s]
-
-            chunks = self._chunks(n)
-            if len(chunks) == 1:
-                parts = [self._measure(cur_arr, ref_sel(slice(0, n)))]
+        with self._lock:
+            if self._optical is not None:  # one pass: the emulation threads its FFTs itself
+                seeds = (rng if rng is not None else self._rng).integers(0, 2**63 - 1, size=n)
+                parts = [self._measure_optical(cur_arr, seeds, idx)]
             else:
-                # one BLAS thread per worker: the per-block matrix products are small, and
-                # nested BLAS threads on top of ours would oversubscribe the cores
-                with (_blas().limit(limits=1, user_api="blas"),
-                      ThreadPoolExecutor(len(chunks)) as ex):
-                    parts = list(ex.map(lambda s: self._measure(cur_arr[s], ref_sel(s)),
-                                        chunks))
+                # pass references are cached per reference block: only when no block repeats
+                cache = index is None or len(np.unique(idx)) == n
+                if not cache:  # repeated rows: make their reference terms before the threads
+                    rows = np.unique(idx)
+                    self._parallel(lambda s: self._ensure_ref(rows[s]), len(rows))
+                if cache and self._pass_wconj is None:
+                    self._pass_wconj = np.empty_like(self._ref_wconj)
+                    self._pass_fw = np.empty_like(self._ref_fw)
+                    self._pass_bw = np.empty_like(self._ref_bw)
+                parts = self._parallel(
+                    lambda s: self._measure(cur_arr[s], idx[s],
+                                            None if pred is None else pred[s], cache), n)
         shift, valid, psr, crlb = (np.concatenate([p[i] for p in parts]) for i in range(4))
         if self._single and np.ndim(cur) == 2:
             return ShiftResult(shift[0], valid[0], psr[0], crlb[0])
         return ShiftResult(shift, valid, psr, crlb)
 
     # ---------------------------------------------------------------------- internals
-    def _weights(self, power, noise, win_energy):
-        """Cross-spectrum weights W (N, h, k): Knapp-Carter SNR weights, or flat 1/2."""
-        if self.options.weighting == "flat":
-            return np.full(power.shape, 0.5, np.float32)
-        return spectral.snr_weights(power, noise * win_energy)
+    def _parallel(self, fn, n: int) -> list:
+        """``fn`` of each chunk (a slice) of a stack of n blocks, on the worker threads."""
+        chunks = self._chunks(n)
+        if len(chunks) == 1 or self._threads == 1:
+            return [fn(c) for c in chunks]
+        # one BLAS thread per worker: the per-block matrix products are small, and nested
+        # BLAS threads on top of ours would oversubscribe the cores
+        with _blas().limit(limits=1, user_api="blas"):
+            return list(_pool().map(fn, chunks))
+
+    def _prep(self, blocks: np.ndarray, blk: np.ndarray, wy: np.ndarray, wx: np.ndarray,
+              out: np.ndarray | None = None):
+        """Blocks ``blk`` of ``blocks`` less their window-weighted means, times the window
+        wy (1 or m, h) x wx (1 or m, w) (FFT-aligned float32, or into ``out``), and their
+        usable flags."""
+        if out is None:
+            out = fftbackend.empty((len(blk), *blocks.shape[1:]), np.float32)
+        stats = np.empty((len(blk), 4))
+        kernels.prep_blocks(blocks, blk, np.ascontiguousarray(wy, dtype=np.float32),
+                            np.ascontiguousarray(wx, dtype=np.float32), True, out, stats)
+        return out, _usable(stats[:, 0], stats[:, 1], stats[:, 2], stats[:, 3])
+
+    def _ref_terms(self, spec: np.ndarray, energy: np.ndarray, out: tuple | None = None):
+        """W conj(R) (n, h, k), the detection's weights over W at the outer frequencies
+        (n, h, k) and on the band (n, hb, kb), CRLB sums (n, 3, 3) and noise variance (n,) of
+        reference spectra (n, h, k) of windows with energies (n,) (or into the five arrays
+        ``out``)."""
+        lay = self._lay
+        g = lay.full
+        n = len(spec)
+        if out is None:
+            out = (np.empty(spec.shape, np.complex64), np.empty(spec.shape, np.float32),
+                   np.empty((n, len(lay.band_rows), lay.band_cols), np.float32),
+                   np.zeros((n, 3, 3)), np.empty(n))
+        wconj, fw, bw, m, noise = out
+        kernels.ref_spectra(spec.view(np.float32), lay.immerkaer, lay.immerkaer_norm, energy,
+                            lay.smooth, DETECT_SMOOTH_BINS, self.options.weighting == "flat",
+                            g.alpha, g.ay, g.ax, g.rows, lay.outer_from, lay.band_rows,
+                            wconj.view(np.float32), fw, bw, m, noise)
+        return out
+
+    def _cross(self, spec: np.ndarray, wconj: np.ndarray, fw: np.ndarray, rows: np.ndarray):
+        """Weighted cross spectra y (n, h, k) of cur spectra against rows of ``wconj``, the
+        cur blocks' Immerkaer sums (n,) and the whitening floors (n,) (of ``fw`` y)."""
+        lay = self._lay
+        n = len(spec)
+        y = np.empty(spec.shape, np.complex64)
+        noise_raw, floor = np.empty(n), np.empty(n)
+        kernels.cross_spectra(spec.view(np.float32), wconj.view(np.float32), fw,
+                              np.asarray(rows, dtype=np.int64), lay.immerkaer, lay.outer_n,
+                              y.view(np.float32), noise_raw, floor)
+        return y, noise_raw, floor
+
+    def _newton(self, y, blk, d0, iterations: int, band: bool = False):
+        """Newton on the full spectrum (or its central band) of blocks ``blk`` of y from
+        d0 (m, 2): (d, Hessian one step before d, last step)."""
+        lay = self._lay
+        g = lay.band if band else lay.full
+        rows = lay.band_rows if band else np.arange(lay.h, dtype=np.int64)
+        d = np.array(d0, dtype=np.float64)
+        m = len(d)
+        val, hess, step = np.empty(m), np.zeros((m, 2, 2)), np.zeros((m, 2))
+        kernels.newton(y.view(np.float32), np.asarray(blk, dtype=np.int64), rows, g.ay, g.rows,
+                       g.ax, g.alpha, d, iterations, float(lay.q) if band else 0.5,
+                       0.0 if band else NEWTON_STOP_PX, val, hess, step)
+        return d, hess, step, val
+
+    def _hessian(self, y: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """Hessian (n, 2, 2) of the correlation of spectra y (n, h, k) at lags d (n, 2)."""
+        return self._newton(y, np.arange(len(y)), d, 1)[1]
 
     def _chunks(self, n: int) -> list[slice]:
-        """Split the stack over threads when each part keeps >= 4 blocks."""
-        k = max(1, min(self._threads, n // 4))
+        """Split the stack into chunks of at most CHUNK_BLOCKS blocks (a chunk's arrays stay in
+        the core's cache from one step to the next), and over the threads when each part keeps
+        >= 4 blocks."""
+        k = max(1, -(-n // CHUNK_BLOCKS), min(self._threads, n // 4))
         edges = np.linspace(0, n, k + 1).astype(int)
         return [slice(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
 
-    def _measure(self, cur_arr: np.ndarray, sl: slice | np.ndarray):
-        """Results of ``cur_arr`` against the reference blocks ``sl`` (slice or indices)."""
+    def _measure(self, cur_arr: np.ndarray, ridx: np.ndarray, pred: np.ndarray | None,
+                 cache: bool):
+        """Results of ``cur_arr`` against the reference blocks ``ridx``."""
         o, lay = self.options, self._lay
         h, w = self.shape
-        cur0, cur_ok = _sanitise(cur_arr)
-        cur_w = cur0 * lay.win_cur
-        cspec = sfft.rfft2(cur_w, workers=1)
-        y = self._ref_wconj[sl] * cspec
-        noise = 0.5 * (self._ref_noise[sl] + _noise_var(cspec, self._e_cur, lay))
+        n = len(ridx)
+        self._ensure_ref(ridx)
+        cur_w, cur_ok = self._prep(cur_arr, np.arange(n), lay.wy_cur[None], lay.wx_cur[None])
+        cspec = fftbackend.rfft2(cur_w)
+        y, noise_raw, floor = self._cross(cspec, self._ref_wconj, self._ref_fw, ridx)
+        noise = 0.5 * (self._ref_noise[ridx] + noise_raw / (lay.immerkaer_norm * lay.e_cur))
+        ref_m = self._ref_m[ridx]
 
-        # ---- detection: the integer peak (and, for the band search, its PSR)
-        xb = y[:, lay.band_rows, : lay.band_cols]
+        # ---- detection: the integer peak (and, for the band search, its PSR and rival)
+        ambiguous = np.zeros(n, bool)
         if self._masked is not None:
-            d0, _, rival = self._masked.detect(cur0, sl)
-        else:
-            dsurf = self._whitened(y)
-            iy, ix = self._argmax(dsurf, lay.q)
-            psr = peaks.psr(dsurf, iy, ix)
-            frac = peaks.peak_fit(peaks.neighbourhood(dsurf, iy, ix).astype(np.float64),
-                                  "parabolic")
-            d0 = lay.q * (np.column_stack([_lag(iy, dsurf.shape[1]), _lag(ix, dsurf.shape[2])])
-                          + frac)
-
-        # ---- sub-pixel
+            d0, _, rival = self._masked.detect(self._cur0(cur_arr), ridx)
+            ambiguous = rival >= o.max_rival_ratio
+            psr = np.zeros(n)
         fits = ("parabolic", "gaussian", "com", "gradient")
         if o.subpixel in fits or o.joint_plane:
-            surf = self._method_surface(self._ref_conj[sl] * cspec, cur_w, sl)
+            surf = self._method_surface(np.conj(self._ref_spec[ridx]) * cspec, cur_w, ridx)
             if self._masked is not None:  # fit around the detected lag (may exceed h / 2)
                 base = np.rint(d0).astype(int)
                 jy, jx = base[:, 0] % h, base[:, 1] % w
@@ -406,25 +617,37 @@ class Correlator:
                 base = np.column_stack([_lag(jy, h), _lag(jx, w)])
             nb = peaks.neighbourhood(surf, jy, jx).astype(np.float64)
             kind = o.subpixel if o.subpixel in ("parabolic", "gaussian", "com") else "parabolic"
-            d0 = base + peaks.peak_fit(nb, kind)
+            d_fit = base + peaks.peak_fit(nb, kind)
+
+        # ---- sub-pixel
         if o.subpixel == "fourier":
-            shift, crlb, converged = self._fourier(y, xb, cur0, noise, d0, sl)
-        elif o.subpixel == "gradient":
-            ref_s = self._ref0[sl]
-            shift, crlb, step = gradient.refine(ref_s, cur0, d0, o.iterations)
-            converged = (np.abs(step).max(axis=1) < 0.05) & (np.abs(shift - d0).max(axis=1) < 1.5)
+            if self._masked is not None:
+                shift, crlb, converged = self._fourier_masked(y, ridx, cur_arr, noise, d0, cache)
+            else:
+                shift, crlb, converged, psr, ambiguous = self._fourier(
+                    y, floor, ridx, cur_arr, noise, ref_m, pred,
+                    d_fit if o.joint_plane else None, cache)
         else:
-            shift, converged = d0, np.ones(len(d0), bool)
-            _, _, hess = spectral.newton_terms(y, shift, lay.full)
-            crlb = spectral.sandwich_crlb(self._ref_m[sl], noise, hess, h * w)
+            if self._masked is None:
+                psr, _ = self._band_detect(y, self._ref_bw, ridx, floor,
+                                           np.full((n, 2), -1, np.int64))
+            if o.subpixel == "gradient":
+                shift, crlb, step = gradient.refine(self._ref0[ridx], self._cur0(cur_arr), d_fit,
+                                                    o.iterations)
+                converged = ((np.abs(step).max(axis=1) < 0.05)
+                             & (np.abs(shift - d_fit).max(axis=1) < 1.5))
+            else:
+                shift, converged = d_fit, np.ones(n, bool)
+                crlb = _crlb(ref_m, noise, self._hessian(y, shift), h * w)
         if self._masked is not None:
-            psr, agree = self._common_psr(self._ref0[sl], cur0, noise, shift)
-            converged &= agree & (rival < o.max_rival_ratio)
+            psr, agree = self._common_psr(ridx, cur_arr, shift, cache)
+            converged &= agree
         valid = (
-            self._ref_ok[sl]
+            self._ref_ok[ridx]
             & cur_ok
             & (psr >= o.psr_threshold)
             & converged
+            & ~ambiguous
             & np.all(np.isfinite(shift), axis=1)
             & np.all(np.abs(shift) <= self.max_shift_px + 0.5, axis=1)
             & np.all(crlb <= o.max_crlb_px, axis=1)
@@ -432,49 +655,202 @@ class Correlator:
         shift = np.where(np.isfinite(shift), shift, 0.0)
         return shift, valid, np.nan_to_num(psr), crlb
 
+    def _cur0(self, cur_arr: np.ndarray) -> np.ndarray:
+        return _sanitise(cur_arr)[0]
+
     def _measure_optical(self, cur_arr: np.ndarray, seeds: np.ndarray, idx: np.ndarray):
         """The emulated JTOC: shift and PSR from its output plane; crlb is the pair's bound
         (what an ideal estimator would reach), for comparison and the texture check."""
         o, lay = self.options, self._lay
         h, w = self.shape
-        cur0, cur_ok = _sanitise(cur_arr)
-        cur_w = cur0 * lay.win_cur
+        self._ensure_ref(idx)
+        cur_w, cur_ok = self._prep(cur_arr, np.arange(len(idx)), lay.wy_cur[None],
+                                   lay.wx_cur[None])
         amplitude = o.optical.on("slm_amplitude")
+        cur0 = self._cur0(cur_arr) if amplitude else None
         rngs = [np.random.default_rng(int(s)) for s in seeds]
         shift, psr = self._optical.measure(self._ref0[idx] if amplitude else self._ref_w[idx],
                                            cur0 if amplitude else cur_w, rngs, o.subpixel)
-        cspec = sfft.rfft2(cur_w, workers=self._threads)
-        noise = 0.5 * (self._ref_noise[idx] + _noise_var(cspec, self._e_cur, lay))
-        _, _, hess = spectral.newton_terms(self._ref_wconj[idx] * cspec, shift, lay.full)
-        crlb = spectral.sandwich_crlb(self._ref_m[idx], noise, hess, h * w)
+        y, noise_raw, _ = self._cross(fftbackend.rfft2(cur_w), self._ref_wconj, self._ref_fw,
+                                      idx)
+        noise = 0.5 * (self._ref_noise[idx] + noise_raw / (lay.immerkaer_norm * lay.e_cur))
+        crlb = _crlb(self._ref_m[idx], noise, self._hessian(y, shift), h * w)
         valid = (self._ref_ok[idx] & cur_ok & (psr >= o.psr_threshold)
                  & np.all(np.abs(shift) <= self.max_shift_px + 0.5, axis=1)
                  & np.all(crlb <= o.max_crlb_px, axis=1))
         return shift, valid, np.nan_to_num(psr), crlb
 
-    def _whitened(self, y: np.ndarray) -> np.ndarray:
-        """Decimated surface (N, h/q, w/q) of the central band of the SNR-whitened spectra
-        y / (|y| + noise floor), the floor being the mean |y| beyond 0.35 cycles/px."""
+    def _band_detect(self, y: np.ndarray, bw: np.ndarray, rows: np.ndarray,
+                     floor: np.ndarray, given: np.ndarray):
+        """Band detection on the SNR-whitened surfaces of the detection's cross spectra
+        ``bw`` y (n, h, k) on the band (``bw`` rows ``rows``): the integer peak
+        within the search range (or at the decimated sample ``given`` (n, 2) where >= 0),
+        returned as (PSR (n,), lag (n, 2) px with a parabolic sub-sample step) and the rival
+        ratio (n,): the PSR of the best local maximum more than BAND_RIVAL_SAMPLES samples
+        away over the peak's."""
         lay = self._lay
-        xb = y[:, lay.band_rows, : lay.band_cols]
-        mag = np.abs(y).reshape(len(y), -1)
-        floor = (mag @ lay.outer) / lay.outer_n
-        floor = np.maximum(floor, 1e-6 * mag.max(axis=1) + 1e-30)
-        white = xb / (np.abs(xb) + floor[:, None, None])
-        return sfft.irfft2(white, s=(len(lay.band_rows), 2 * (lay.band_cols - 1)), workers=1)
+        n = len(y)
+        hb, kb = len(lay.band_rows), lay.band_cols
+        white = fftbackend.empty((n, hb, kb), np.complex64)
+        kernels.whiten_band(y.view(np.float32), bw, np.asarray(rows, dtype=np.int64),
+                            lay.band_rows, kb, floor, white.view(np.float32))
+        surf = fftbackend.irfft2(white, (hb, 2 * (kb - 1)), normalise=False)
+        lag, psr, rival = np.empty((n, 2)), np.empty(n), np.empty(n)
+        kernels.detect(surf, self._rows_in, self._cols_in, 2, BAND_RIVAL_SAMPLES, given, lag, psr,
+                       rival)
+        lag *= lay.q
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(psr > 0, rival / psr, 1.0)
+        return psr, (lag, np.nan_to_num(ratio, nan=1.0))
 
-    def _common_psr(self, ref0, cur0, noise, d):
+    def _fourier(self, y, floor, ridx, cur_arr, noise, ref_m, pred, d_fit, cache):
+        """Fourier refinement after the band detection: band Newton from the detected peak
+        (or the joint plane's fit ``d_fit``), weighted full-band Newton, common-content
+        passes; blocks with a trusted prediction ``pred`` start Newton from it.
+        Returns (shift, crlb, converged, psr, ambiguous)."""
+        o, lay = self.options, self._lay
+        h, w = self.shape
+        n = len(y)
+        d = np.zeros((n, 2))
+        hess = np.zeros((n, 2, 2))
+        step = np.zeros((n, 2))
+        given = np.full((n, 2), -1, np.int64)
+        trusted = np.zeros(n, bool)
+        if pred is not None:
+            dp, hp, sp, _ = self._newton(y, np.arange(n), pred, max(1, o.iterations))
+            cp = _crlb(ref_m, noise, hp, h * w)
+            trusted = (_settled(sp, cp, NEWTON_TOL_PX)
+                       & np.all(np.abs(dp - pred) <= o.trust_prediction_px, axis=1))
+            d[trusted], hess[trusted], step[trusted] = dp[trusted], hp[trusted], sp[trusted]
+            hs, ws = len(lay.band_rows), 2 * (lay.band_cols - 1)
+            given[trusted] = np.rint(dp[trusted] / lay.q).astype(np.int64) % [hs, ws]
+        psr, (d0, ratio) = self._band_detect(y, self._ref_bw, ridx, floor, given)
+        if d_fit is not None:
+            d0 = d_fit
+        search = np.flatnonzero(~trusted)
+        if len(search):
+            ds = self._newton(y, search, d0[search], 2, band=True)[0]
+            d[search], hess[search], step[search], _ = self._newton(y, search, ds, o.iterations)
+        crlb = _crlb(ref_m, noise, hess, h * w)
+        sane = trusted | (np.abs(d - d0).max(axis=1) < lay.q + 1)
+        ambiguous = ~trusted & (ratio >= BAND_MAX_RIVAL_RATIO)
+        settled = _settled(step, crlb, NEWTON_TOL_PX)
+        # ---- common-content passes: blocks moved beyond the exact margin (or all, if asked)
+        far = np.any(np.abs(d) > np.array(lay.margin), axis=1) & np.isfinite(d).all(axis=1)
+        idx = np.flatnonzero(np.ones(n, bool) if o.rewindow else far)
+        settled = self._passes(idx, ridx, cur_arr, noise, d, crlb, settled, cache)
+        return d, crlb, sane & settled, psr, ambiguous
+
+    def _fourier_masked(self, y, ridx, cur_arr, noise, d0, cache):
+        """Fourier refinement after a masked detection: the lag is good to a bin, so straight
+        to the common content (the circular surface of a far-shifted pair is dominated by
+        content the blocks do not share); this coarse pass need not settle, the passes after
+        it must."""
+        lay = self._lay
+        n = len(d0)
+        idx = np.arange(n)
+        d, crlb, _ = self._common_pass(idx, ridx, cur_arr, noise, d0, cache, coarse=True)
+        sane = np.abs(d - d0).max(axis=1) < lay.q + 1
+        idx = np.flatnonzero(np.isfinite(d).all(axis=1))
+        settled = self._passes(idx, ridx, cur_arr, noise, d, crlb, np.ones(n, bool), cache)
+        return d, crlb, sane & settled
+
+    def _passes(self, idx, ridx, cur_arr, noise, d, crlb, settled, cache):
+        """Common-content passes of blocks ``idx``, in place on d and crlb, repeated to their
+        fixed point; returns ``settled`` updated by each block's last pass.
+
+        The windows follow the estimate, so the pass is repeated until it is self-consistent.
+        A window displaced by e moves the estimate by s e: s ~ 0.1-0.2 on even texture, up to
+        ~0.7 where a bright, smooth structure (a cloud, a snow field) lies in the taper. The
+        passes contract linearly, d' - d* = s (d - d*), so after two plain moves each
+        component jumps to its fixed point (Aitken's delta-squared), then starts over.
+        """
+        settled = settled.copy()
+        prev = np.zeros_like(d)
+        moved = np.zeros(len(d))
+        for _ in range(COMMON_PASSES):
+            if not len(idx):
+                break
+            d2, c2, step2 = self._common_pass(idx, ridx, cur_arr, noise, d[idx], cache)
+            step = d2 - d[idx]
+            p = prev[idx]
+            ratio = np.divide(step, p, out=np.zeros_like(step), where=np.abs(p) > AITKEN_MIN_PX)
+            jump = (ratio > AITKEN_RATIO[0]) & (ratio < AITKEN_RATIO[1])
+            prev[idx] = np.where(jump, 0.0, step)
+            step = np.where(jump, step / (1.0 - np.where(jump, ratio, 0.0)), step)
+            d[idx], crlb[idx] = d[idx] + step, c2
+            settled[idx] = _settled(step2, c2, NEWTON_TOL_PX)
+            moved[idx] = np.abs(step).max(axis=1)
+            tol = np.maximum(COMMON_PASS_TOL_PX, PASS_TOL_REL * c2.max(axis=1))
+            idx = idx[np.isfinite(moved[idx]) & (moved[idx] > tol)]
+        # still moving after the last pass: not self-consistent, not a result to trust
+        return settled & (moved <= np.maximum(COMMON_PASS_MAX_MOVE_PX,
+                                              SETTLED_REL * crlb.max(axis=1)))
+
+    def _common_pass(self, idx, ridx, cur_arr, noise, d, cache, coarse: bool = False):
+        """One pass of blocks ``idx`` with both windows on the content common to ref and cur
+        at lags d; ``coarse``: start with two band Newton steps (d good only to a decimation
+        step). Returns (d, crlb, last Newton step)."""
+        o = self.options
+        h, w = self.shape
+        y, _, m, _ = self._pass_spectra(idx, ridx, cur_arr, d, cache)
+        blk = np.arange(len(idx))
+        if coarse:
+            d = self._newton(y, blk, d, 2, band=True)[0]
+        d2, hess, step, _ = self._newton(y, blk, d, o.iterations)
+        crlb = _crlb(m, noise[idx], hess, h * w)
+        return d2, crlb, step
+
+    def _pass_spectra(self, idx, ridx, cur_arr, d, cache):
+        """Weighted cross spectra (m, h, k) of blocks ``idx`` with ref windowed to the content
+        it shares with cur at lags d (m, 2) (whole-pixel margins, :func:`_pass_margins`) and
+        cur windowed alike, moved by d; their whitening floors, CRLB sums (m, 3, 3) and the
+        detection's band weights (array, its rows)."""
+        lay = self._lay
+        h, w = self.shape
+        mg = _pass_margins(d)
+        rows = ridx[idx]
+        key = mg.reshape(len(idx), 4)
+        if cache:
+            miss = np.flatnonzero(np.any(self._pass_key[rows] != key, axis=1))
+            if len(miss):
+                wc, fw, bw, mm, _ = self._pass_reference(rows[miss], mg[miss])
+                self._pass_wconj[rows[miss]] = wc
+                self._pass_fw[rows[miss]] = fw
+                self._pass_bw[rows[miss]] = bw
+                self._pass_m[rows[miss]] = mm
+                self._pass_key[rows[miss]] = key[miss]
+            src, fw, bw = self._pass_wconj, self._pass_fw, self._pass_bw
+            srow, m = rows, self._pass_m[rows]
+        else:
+            src, fw, bw, m, _ = self._pass_reference(rows, mg)
+            srow = np.arange(len(idx))
+        wy = _pass_windows(h, lay.taper[0], mg[:, 0, 0], mg[:, 0, 1], d[:, 0])
+        wx = _pass_windows(w, lay.taper[1], mg[:, 1, 0], mg[:, 1, 1], d[:, 1])
+        cur_w, _ = self._prep(cur_arr, idx, wy, wx)
+        y, _, floor = self._cross(fftbackend.rfft2(cur_w), src, fw, srow)
+        return y, floor, m, (bw, srow)
+
+    def _pass_reference(self, rows: np.ndarray, mg: np.ndarray):
+        """:meth:`_ref_terms` of reference blocks ``rows`` windowed with zero margins
+        mg (m, 2, 2) (their own Knapp-Carter weights)."""
+        lay = self._lay
+        h, w = self.shape
+        wy = _pass_windows(h, lay.taper[0], mg[:, 0, 0], mg[:, 0, 1])
+        wx = _pass_windows(w, lay.taper[1], mg[:, 1, 0], mg[:, 1, 1])
+        ref_w, _ = self._prep(self._ref_in, rows, wy, wx)
+        return self._ref_terms(fftbackend.rfft2(ref_w), _energy(wy, wx))
+
+    def _common_psr(self, ridx, cur_arr, d, cache):
         """PSR (N,) of the whitened surface of the content common at lag ``d`` (N, 2) px, and
         whether that surface's own peak agrees with ``d`` to a decimation step (mod the block):
         after a masked detection, the statistic on which the threshold is applied."""
         lay = self._lay
         h, w = self.shape
-        y, *_ = self._common_spectra(ref0, cur0, noise, d)
-        dsurf = self._whitened(y)
-        n, hs, ws = dsurf.shape
-        iy, ix = np.unravel_index(dsurf.reshape(n, -1).argmax(axis=1), (hs, ws))
-        psr = peaks.psr(dsurf, iy, ix)
-        lag = lay.q * np.column_stack([_lag(iy, hs), _lag(ix, ws)])
+        n = len(d)
+        y, floor, _, (bw, rows) = self._pass_spectra(np.arange(n), ridx, cur_arr, d, cache)
+        psr, (lag, _) = self._band_detect(y, bw, rows, floor, np.full((n, 2), -1, np.int64))
+        lag = lay.q * np.rint(lag / lay.q)
         size = np.array([h, w])
         diff = np.mod(lag - d + size / 2, size) - size / 2
         return psr, np.all(np.abs(diff) <= lay.q + 0.5, axis=1)
@@ -488,115 +864,46 @@ class Correlator:
         flat = np.where(inside[None], surf, -np.inf).reshape(n, -1).argmax(axis=1)
         return np.unravel_index(flat, (hs, ws))
 
-    def _method_surface(self, x, cur_w, sl) -> np.ndarray:
+    def _method_surface(self, x, cur_w, ridx) -> np.ndarray:
         """Full-resolution correlation surface of the chosen method (lag 0 at [0, 0])."""
         o = self.options
         h, w = self.shape
         if o.method == "jtc" and o.joint_plane:
-            return jtc.joint_plane_surface(self._ref_w[sl], cur_w, o.jtc_filter)
+            return jtc.joint_plane_surface(self._ref_w[ridx], cur_w, o.jtc_filter)
         if o.method == "phase":
             spec = x / (np.abs(x) + 1e-30)
         elif o.method == "jtc" and o.jtc_filter == "fringe":
-            pr = self._ref_pow[sl]
+            rs = self._ref_spec[ridx]
+            pr = rs.real**2 + rs.imag**2
             spec = x / (pr + jtc.fringe_eps(pr))
         else:
             spec = x
-        return sfft.irfft2(spec, s=(h, w), workers=1)
-
-    def _fourier(self, y, yb, cur0, noise, d0, sl):
-        """Fourier refinement: band Newton (on ``yb``, the central band of ``y``), weighted
-        full-band Newton, common-content passes; after a masked detection, straight to the
-        common content."""
-        o, lay = self.options, self._lay
-        h, w = self.shape
-        if self._masked is not None:
-            # the masked lag is good to a bin: go straight to the common content (the circular
-            # surface of a far-shifted pair is dominated by content the blocks do not share)
-            # (this coarse pass's own convergence is not required: the passes below must)
-            d, crlb, _ = self._common_pass(np.arange(len(d0)), sl, cur0, noise, d0, coarse=True)
-            converged = np.abs(d - d0).max(axis=1) < lay.q + 1
-            idx = np.flatnonzero(np.isfinite(d).all(axis=1))
-        else:
-            d, *_ = spectral.newton_peak(yb, d0, lay.band, 2, float(lay.q))
-            d, hess, step = spectral.newton_peak(y, d, lay.full, o.iterations, 0.5)
-            crlb = spectral.sandwich_crlb(self._ref_m[sl], noise, hess, h * w)
-            converged = ((np.abs(step).max(axis=1) < 0.01)
-                         & (np.abs(d - d0).max(axis=1) < lay.q + 1))
-            # ---- common-content pass: blocks moved beyond the exact margin (or all, if asked)
-            far = np.any(np.abs(d) > np.array(lay.margin), axis=1) & np.isfinite(d).all(axis=1)
-            idx = np.flatnonzero(np.ones(len(d), bool) if o.rewindow else far)
-        # The windows follow the estimate, so the pass is repeated until it is self-consistent.
-        # A window displaced by e moves the estimate by s e: s ~ 0.1-0.2 on even texture, up to
-        # ~0.7 where a bright, smooth structure (a cloud, a snow field) lies in the taper. The
-        # passes contract linearly, d' - d* = s (d - d*), so after two plain moves each
-        # component jumps to its fixed point (Aitken's delta-squared), then starts over.
-        prev = np.zeros_like(d)
-        moved = np.zeros(len(d))
-        for _ in range(COMMON_PASSES):
-            if not len(idx):
-                break
-            d2, c2, ok2 = self._common_pass(idx, sl, cur0[idx], noise[idx], d[idx])
-            step = d2 - d[idx]
-            p = prev[idx]
-            ratio = np.divide(step, p, out=np.zeros_like(step), where=np.abs(p) > AITKEN_MIN_PX)
-            jump = (ratio > AITKEN_RATIO[0]) & (ratio < AITKEN_RATIO[1])
-            prev[idx] = np.where(jump, 0.0, step)
-            step = np.where(jump, step / (1.0 - np.where(jump, ratio, 0.0)), step)
-            d[idx], crlb[idx], converged[idx] = d[idx] + step, c2, converged[idx] & ok2
-            moved[idx] = np.abs(step).max(axis=1)
-            idx = idx[np.isfinite(moved[idx]) & (moved[idx] > COMMON_PASS_TOL_PX)]
-        # still moving after the last pass: not self-consistent, not a result to trust
-        converged &= ~(moved > COMMON_PASS_MAX_MOVE_PX)
-        return d, crlb, converged
-
-    def _common_pass(self, idx, sl, cur0, noise, d, coarse: bool = False):
-        """Both windows centred on the content common to ref and cur (shifted by -+d/2);
-        ``coarse``: start with two band Newton steps (d good only to a decimation step)."""
-        o, lay = self.options, self._lay
-        h, w = self.shape
-        y, wts, rpow = self._common_spectra(self._ref0[sl][idx], cur0, noise, d)
-        if coarse:
-            yb = y[:, lay.band_rows, : lay.band_cols]
-            d, *_ = spectral.newton_peak(yb, d, lay.band, 2, float(lay.q))
-        d2, hess, step = spectral.newton_peak(y, d, lay.full, o.iterations, 0.5)
-        m = spectral.gradient_power(wts, rpow, lay.full)
-        crlb = spectral.sandwich_crlb(m, noise, hess, h * w)
-        return d2, crlb, np.abs(step).max(axis=1) < 0.01
-
-    def _common_spectra(self, ref0, cur0, noise, d):
-        """Weighted cross spectra (N, h, k), weights and ref power with both windows centred
-        on the content common to ref and cur at lag ``d`` (shifted by -+d/2)."""
-        lay = self._lay
-        h, w = self.shape
-        tr = lay.taper
-        wy_r = spectral.tukey_1d(h, tr[0], np.abs(d[:, 0]) / 2, -d[:, 0] / 2)
-        wx_r = spectral.tukey_1d(w, tr[1], np.abs(d[:, 1]) / 2, -d[:, 1] / 2)
-        wy_c = spectral.tukey_1d(h, tr[0], np.abs(d[:, 0]) / 2, d[:, 0] / 2)
-        wx_c = spectral.tukey_1d(w, tr[1], np.abs(d[:, 1]) / 2, d[:, 1] / 2)
-        win_r = wy_r[:, :, None] * wx_r[:, None, :]
-        win_c = wy_c[:, :, None] * wx_c[:, None, :]
-        # each block's mean over its window goes first: the two block means differ by the
-        # content they do not share, and that offset times the window would bias the peak
-        rs = sfft.rfft2(_demeaned(ref0, win_r) * win_r, workers=1)
-        cs = sfft.rfft2(_demeaned(cur0, win_c) * win_c, workers=1)
-        rpow = (rs.real**2 + rs.imag**2).astype(np.float32)
-        e = (win_r**2).sum(axis=(1, 2))
-        wts = self._weights(rpow, noise, e)
-        y = (wts * np.conj(rs) * cs).astype(np.complex64)
-        return y, wts, rpow
+        return fftbackend.irfft2(spec, (h, w))
 
 
-def _demeaned(blocks: np.ndarray, win: np.ndarray) -> np.ndarray:
-    """Blocks (N, h, w) less their window-weighted means."""
-    mean = (np.einsum("nij,nij->n", blocks, win, dtype=np.float64)
-            / np.maximum(win.sum(axis=(1, 2), dtype=np.float64), 1e-30))
-    return blocks - mean.astype(np.float32)[:, None, None]
+def _crlb(m: np.ndarray, noise: np.ndarray, hess: np.ndarray, npix: int) -> np.ndarray:
+    """Predicted 1-sigma error (n, 2) px: :func:`correlator.kernels.crlb`."""
+    out = np.empty((len(hess), 2))
+    kernels.crlb(m, np.asarray(noise, dtype=np.float64), hess, npix, out)
+    return out
+
+
+def _settled(step: np.ndarray, crlb: np.ndarray, abs_tol: float) -> np.ndarray:
+    """Whether a last Newton step (n, 2) px is small: within abs_tol or SETTLED_REL of the
+    block's own predicted error (n, 2) on both axes."""
+    return np.all(np.abs(step) <= np.maximum(abs_tol, SETTLED_REL * crlb), axis=1)
 
 
 @lru_cache(maxsize=1)
 def _blas() -> ThreadpoolController:
     """The process's BLAS thread pools (inspected once: the inspection costs milliseconds)."""
     return ThreadpoolController()
+
+
+@lru_cache(maxsize=1)
+def _pool() -> ThreadPoolExecutor:
+    """The correlators' worker threads, kept for the process (each keeps its FFT plans)."""
+    return ThreadPoolExecutor(os.cpu_count() or 1, thread_name_prefix="correlator")
 
 
 def _lag(i: np.ndarray, size: int) -> np.ndarray:

@@ -76,8 +76,13 @@ def texture_pairs(n: int, block_px: int, rng: np.random.Generator, *, snr: float
     scale = (tc.contrast * MEAN_LEVEL) / a.std(axis=(1, 2), keepdims=True)
     o = (size - block_px) // 2
     win = (slice(None), slice(o, o + block_px), slice(o, o + block_px))
-    clean = a[win] * scale + MEAN_LEVEL
-    cur = b[win] * scale + MEAN_LEVEL
+    return _noisy(a[win] * scale + MEAN_LEVEL, b[win] * scale + MEAN_LEVEL, d, rng, snr,
+                  return_clean)
+
+
+def _noisy(clean: np.ndarray, cur: np.ndarray, d: np.ndarray, rng: np.random.Generator,
+           snr: float, return_clean: bool):
+    """(ref, cur) float32 with independent noise of sigma = 100 / snr on each, d, [clean]."""
     ref = clean
     if np.isfinite(snr):
         sigma = MEAN_LEVEL / snr
@@ -100,3 +105,59 @@ def crlb_px(clean: np.ndarray, sigma: float) -> np.ndarray:
     a12 = (gy * gx).sum(axis=(1, 2))
     det = a11 * a22 - a12 * a12
     return np.sqrt(2.0 * sigma**2 * np.column_stack([a22 / det, a11 / det]))
+
+
+def image_pairs(images, n: int, block_px: int, rng: np.random.Generator, *,
+                snr: float = np.inf, contrast: float | None = None, max_shift_px: float = 4.0,
+                return_clean: bool = False):
+    """n (ref, cur) block pairs cut from natural images, moved by exact sub-pixel shifts.
+
+    Each pair: a random crop of a random image (2-D, or RGB averaged), mirrored into a
+    periodic field (no wrap edge), moved by a uniform random shift within +-max_shift_px by a
+    Fourier phase ramp; the central blocks are scaled to mean 100 and, if asked, to
+    ``contrast`` (std / mean of the reference block), then noise of sigma = 100 / snr is added
+    to each.
+
+    Parameters
+    ----------
+    images : sequence of 2-D (or (H, W, 3)) arrays, each larger than the block plus twice
+        the shift range plus 16 px.
+    n, block_px, rng, snr, max_shift_px, return_clean : as :func:`texture_pairs`.
+    contrast : std / mean of each reference block (None: the image's own).
+
+    Returns
+    -------
+    As :func:`texture_pairs`.
+    """
+    if snr <= 0:
+        raise ValueError(f"snr must be > 0, got {snr}")
+    imgs = [np.asarray(im, dtype=np.float64) for im in images]
+    imgs = [im.mean(axis=-1) if im.ndim == 3 else im for im in imgs]
+    size = int(block_px + 2 * np.ceil(max_shift_px) + 16)
+    if not imgs or any(im.ndim != 2 or min(im.shape) < size for im in imgs):
+        raise ValueError(f"images must be 2-D and at least {size} px on a side")
+    pick = rng.integers(0, len(imgs), n)
+    crops = np.empty((n, size, size))
+    for i, k in enumerate(pick):  # one small copy per pair: not a hot path
+        h, w = imgs[k].shape
+        y0, x0 = rng.integers(0, h - size + 1), rng.integers(0, w - size + 1)
+        crops[i] = imgs[k][y0 : y0 + size, x0 : x0 + size]
+    field = np.concatenate([crops, crops[:, ::-1]], axis=1)
+    field = np.concatenate([field, field[:, :, ::-1]], axis=2)  # even: periodic, continuous
+    f = 2 * size
+    fy = sfft.fftfreq(f)[:, None]
+    fx = sfft.rfftfreq(f)[None, :]
+    d = rng.uniform(-max_shift_px, max_shift_px, size=(n, 2))
+    ramp = np.exp(-2j * np.pi * (fy[None] * d[:, 0, None, None] + fx[None] * d[:, 1, None, None]))
+    spec = sfft.rfft2(field)
+    moved = sfft.irfft2(spec * ramp, s=(f, f))
+    o = (size - block_px) // 2
+    win = (slice(None), slice(o, o + block_px), slice(o, o + block_px))
+    a, b = field[win], moved[win]
+    mean = a.mean(axis=(1, 2), keepdims=True)
+    if contrast is None:
+        gain = MEAN_LEVEL / mean
+    else:
+        gain = contrast * MEAN_LEVEL / np.maximum(a.std(axis=(1, 2), keepdims=True), 1e-12)
+    return _noisy((a - mean) * gain + MEAN_LEVEL, (b - mean) * gain + MEAN_LEVEL, d, rng, snr,
+                  return_clean)

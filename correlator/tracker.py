@@ -64,8 +64,11 @@ class BlockTracker:
         ``predicted_px`` (n, 2), optional: the motion expected from orbit and attitude. Each
         block is then cut from ``frame`` at its corner moved by the rounded prediction, and that
         whole-pixel offset is added back, so the correlator only sees the unpredicted part. A
-        block moved off the sensor comes back invalid (shift NaN). ``rng``: noise of an
-        emulated optical correlator; ``index``: measure only these blocks (results for them).
+        block moved off the sensor comes back invalid (shift NaN). With
+        ``options.trust_prediction_px`` set, the correlator also starts Newton from the
+        prediction's sub-pixel remainder and skips the integer search where the result settles
+        within that distance of it. ``rng``: noise of an emulated optical correlator;
+        ``index``: measure only these blocks (results for them).
         """
         frame = np.asarray(frame)
         sel = np.arange(len(self.corners)) if index is None else np.asarray(index, dtype=int)
@@ -73,12 +76,16 @@ class BlockTracker:
         if predicted_px is None:
             return self.correlator.measure(extract_blocks(frame, base, self.block_px), rng,
                                            index)
-        step = np.rint(np.asarray(predicted_px, dtype=np.float64)[sel]).astype(int)
+        pred = np.asarray(predicted_px, dtype=np.float64)[sel]
+        step = np.rint(pred).astype(int)
         corners = base + step
         h, w = frame.shape
         inside = np.all((corners >= 0) & (corners + self.block_px <= [h, w]), axis=1)
         safe = np.where(inside[:, None], corners, base)
-        res = self.correlator.measure(extract_blocks(frame, safe, self.block_px), rng, index)
+        # with options.trust_prediction_px the correlator starts from the sub-pixel remainder
+        trusted = self.correlator.options.trust_prediction_px is not None
+        res = self.correlator.measure(extract_blocks(frame, safe, self.block_px), rng, index,
+                                      predicted=(pred - step) if trusted else None)
         shift = np.where(inside[:, None], res.shift + step, np.nan)
         return ShiftResult(shift, res.valid & inside, np.where(inside, res.peak, 0.0),
                            np.where(inside[:, None], res.crlb, np.inf))

@@ -332,7 +332,7 @@ class KalmanState:
     lines_hz: np.ndarray  # (L,) the oscillators' frequencies (known + identified)
     line_q: np.ndarray  # (L,) their process noise densities, px^2/s
     hist_t: np.ndarray  # (H,) recent measurement times (identification window)
-    hist_z: np.ndarray  # (H, 2) their innovations (measurement - prediction)
+    hist_z: np.ndarray  # (H, 2) the measured motion (feed-forward removed)
     t_identified: float  # last identification (nan: never)
     sigma_nom: float  # the measurement noise the process noise is scaled by (nan: not yet)
 
@@ -347,10 +347,14 @@ class KalmanPredictor:
         measurement noise: q = (2 pi bw)^(2 order) sigma^2 T); None: a twentieth of the
         measurement rate.
     lines_hz : known lines (e.g. reaction-wheel harmonics), modelled as oscillators.
-    identify : add lines found in what the model fails to predict (Lomb-Scargle periodogram
-        of the innovations of the last ``window_s``, every ``every_s``; peaks ``line_snr``
-        times the median power, at most ``max_lines`` in all, above 2 / window_s).
+    identify : add lines found in the measurements (tapered Lomb-Scargle periodogram of the
+        last ``window_s`` of the motion, quadratic trend removed, every ``every_s``; peaks
+        ``line_snr`` times the median power, at most ``max_lines`` in all, above 1.5 /
+        window_s; :func:`find_lines`); a new oscillator starts from a least-squares fit and
+        takes its part of the motion over from the kinematic states.
     line_bandwidth_hz : how fast a line's amplitude and phase may wander.
+    line_amplitude_px : the amplitude a known line is expected to have (it scales the
+        line's process noise; identified lines use their fitted amplitude).
     lead_s : extra prediction lead, s (None: the actuator's lag, set by the wiring: half a
         ramp for a ramping stage, the mode's group delay for a piezo).
     noise_px : nominal measurement noise that scales the kinematic process noise; None: a
@@ -368,11 +372,12 @@ class KalmanPredictor:
     bandwidth_hz: float | None = None
     lines_hz: tuple[float, ...] = ()
     identify: bool = True
-    window_s: float = 1.0
-    every_s: float = 0.5
+    window_s: float = 2.0
+    every_s: float = 1.0
     max_lines: int = 4
     line_snr: float = 40.0
     line_bandwidth_hz: float = 0.05
+    line_amplitude_px: float = 0.1
     lead_s: float | None = None
     noise_px: float | None = None
     sigma_floor_px: float = 1e-3
@@ -422,7 +427,8 @@ class KalmanPredictor:
         n = self.order + 2 * len(lines)
         cov = np.stack([self._initial_cov(len(lines))] * 2)
         return KalmanState(np.zeros((2, n)), cov, np.nan, lines,
-                           np.full(len(lines), self._line_q(1.0)), np.empty(0),
+                           np.full(len(lines), self._line_q(self.line_amplitude_px)),
+                           np.empty(0),
                            np.empty((0, 2)), np.nan,
                            np.nan if self.noise_px is None else float(self.noise_px))
 
@@ -441,9 +447,9 @@ class KalmanPredictor:
         if inp.valid:
             st = self._track_noise(st, float(sigma.mean()))
             z = np.asarray(inp.target_px, dtype=np.float64) - self._ff(inp.t_meas_s)
-            st, innovation = self._filter(st, inp.t_meas_s, z, sigma)
-            if self.identify and innovation is not None:
-                st = self._identify(st, inp.t_meas_s, innovation, st.sigma_nom)
+            st = self._filter(st, inp.t_meas_s, z, sigma)
+            if self.identify:
+                st = self._identify(st, inp.t_meas_s, z, st.sigma_nom)
         if np.isnan(st.t_s):
             return st, np.asarray(inp.last_command_px, dtype=np.float64)
         t_goal = inp.t_s + 0.5 * inp.period_s + (self.lead_s or 0.0)
@@ -466,11 +472,11 @@ class KalmanPredictor:
         return dataclasses.replace(st, sigma_nom=0.95 * st.sigma_nom + 0.05 * sigma)
 
     def _filter(self, st: KalmanState, t: float, z: np.ndarray, sigma: np.ndarray):
-        """Predict to t, update with z; -> (state, innovation or None for the first)."""
+        """Predict to t, update with z."""
         if np.isnan(st.t_s):
             x = st.x.copy()
             x[:, 0] = z
-            return dataclasses.replace(st, x=x, t_s=t), None
+            return dataclasses.replace(st, x=x, t_s=t)
         phi, q, h = self.model(t - st.t_s, st.lines_hz, st.line_q, st.sigma_nom)
         x = st.x @ phi.T
         cov = phi @ st.cov @ phi.T + q
@@ -481,7 +487,7 @@ class KalmanPredictor:
         x = x + k * innovation[:, None]
         cov = cov - k[:, :, None] * ph[:, None, :]
         cov = 0.5 * (cov + np.transpose(cov, (0, 2, 1)))
-        return dataclasses.replace(st, x=x, cov=cov, t_s=t), innovation
+        return dataclasses.replace(st, x=x, cov=cov, t_s=t)
 
     def _identify(self, st: KalmanState, t: float, z: np.ndarray, sigma: float):
         keep = st.hist_t > t - self.window_s
@@ -493,31 +499,38 @@ class KalmanPredictor:
         if not due or span < 0.9 * self.window_s or len(st.lines_hz) >= self.max_lines:
             return st
         st = dataclasses.replace(st, t_identified=t)
-        found = find_lines(hist_t, hist_z, 2.0 / self.window_s, self.line_snr,
+        found = find_lines(hist_t, hist_z, 1.5 / self.window_s, self.line_snr,
                            self.max_lines - len(st.lines_hz), st.lines_hz)
         if not len(found):
             return st
         return self._add_lines(st, found, sigma)
 
     def _add_lines(self, st: KalmanState, freqs: np.ndarray, sigma: float) -> KalmanState:
-        """New oscillators initialised from a least-squares fit of the window's innovations
-        (what the model did not predict)."""
+        """New oscillators initialised from a least-squares fit of the window (trend, known
+        lines and the new ones); the kinematic states give up the new lines' part (value,
+        rate and acceleration now)."""
         t, z = st.hist_t, st.hist_z
         tc = t - t[-1]
-        cols = [np.ones_like(tc), tc]
-        for f in freqs:
+        cols = [np.ones_like(tc), tc, tc**2]
+        for f in np.concatenate([st.lines_hz, freqs]):
             cols += [np.cos(2 * np.pi * f * tc), -np.sin(2 * np.pi * f * tc)]
         design = np.column_stack(cols)
-        coef, *_ = np.linalg.lstsq(design, z, rcond=None)  # (2 + 2F, 2)
+        coef, *_ = np.linalg.lstsq(design, z, rcond=None)
+        coef = coef[3 + 2 * len(st.lines_hz):]  # the new lines' (c, s) pairs
+        coef = np.concatenate([np.zeros((2, 2)), coef])  # keep the indexing below
         n_old = st.x.shape[1]
         n_new = n_old + 2 * len(freqs)
         x = np.zeros((2, n_new))
         x[:, :n_old] = st.x
         amp = np.zeros(len(freqs))
-        for i in range(len(freqs)):
+        for i, f in enumerate(freqs):
             c, s = coef[2 + 2 * i], coef[3 + 2 * i]  # (2,), value now = c
             x[:, n_old + 2 * i] = c
             x[:, n_old + 2 * i + 1] = s
+            w = 2 * np.pi * f
+            part = [c, -w * s, -w * w * c][: self.order]  # value, rate, acceleration now
+            for j, v in enumerate(part):
+                x[:, j] -= v
             amp[i] = float(np.sqrt(np.mean(c**2 + s**2)))
         cov = np.zeros((2, n_new, n_new))
         cov[:, :n_old, :n_old] = st.cov
@@ -534,7 +547,7 @@ class KalmanPredictor:
     def steady_state(self, period_s: float, sigma_px: float, lines_hz=None, line_q=None):
         """Steady-state gain K (n,) and the model (Phi, Q, H) at a regular period."""
         lines = np.array(self.lines_hz if lines_hz is None else lines_hz, dtype=np.float64)
-        lq = (np.full(len(lines), self._line_q(1.0)) if line_q is None
+        lq = (np.full(len(lines), self._line_q(self.line_amplitude_px)) if line_q is None
               else np.asarray(line_q, dtype=np.float64))
         phi, q, h = self.model(period_s, lines, lq, sigma_px)
         cov = self._initial_cov(len(lines))
@@ -582,31 +595,84 @@ def lomb_scargle(t: np.ndarray, y: np.ndarray, freqs_hz: np.ndarray) -> np.ndarr
     return 0.5 * ((c @ y) ** 2 / (c * c).sum(axis=1) + (s @ y) ** 2 / (s * s).sum(axis=1))
 
 
+def _periodogram(t: np.ndarray, y: np.ndarray, oversample: int = 8):
+    """(freqs, power) of y (N, 2) summed over axes: FFT of the zero-padded series when the
+    sampling is regular, Lomb-Scargle otherwise."""
+    span = t[-1] - t[0]
+    dt = np.diff(t)
+    f_max = 0.45 * (len(t) - 1) / span
+    if np.ptp(dt) <= 1e-6 * np.mean(dt):
+        n = oversample * len(t)
+        spec = np.fft.rfft(y, n=n, axis=0)
+        freqs = np.fft.rfftfreq(n, float(np.mean(dt)))
+        keep = freqs <= f_max
+        return freqs[keep], (np.abs(spec[keep]) ** 2).sum(axis=1)
+    freqs = np.arange(0.0, f_max, 1.0 / (oversample * span))[1:]
+    return freqs, sum(lomb_scargle(t, y[:, i], freqs) for i in range(y.shape[1]))
+
+
 def find_lines(t: np.ndarray, z: np.ndarray, f_min_hz: float, snr: float, max_new: int,
                known_hz: np.ndarray) -> np.ndarray:
-    """Frequencies (Hz) of up to max_new periodogram peaks of z (N, 2) over its linear trend,
-    at least ``snr`` times the median power and clear of the known lines."""
+    """Frequencies (Hz) of up to max_new sinusoids in z (N, 2), by prewhitening: fit the
+    quadratic trend and the lines known so far by least squares, take the tallest peak of
+    the residual's periodogram (Hann taper) if it stands ``snr`` times above the median
+    power and clear of the known lines, refine it (parabola on the log power), add it, refit,
+    and repeat. Removing each line before looking for the next keeps a strong line's
+    sidelobes from passing for weaker ones."""
     if max_new <= 0 or len(t) < 16:
         return np.empty(0)
     span = t[-1] - t[0]
-    f_max = 0.45 * (len(t) - 1) / span
     res = 1.0 / span
-    freqs = np.arange(f_min_hz, f_max, res / 8.0)
-    if len(freqs) < 8:
-        return np.empty(0)
-    a = np.column_stack([np.ones_like(t), t - t.mean()])
-    detr = z - a @ np.linalg.lstsq(a, z, rcond=None)[0]
-    power = sum(lomb_scargle(t, detr[:, i], freqs) for i in range(z.shape[1]))
-    floor = np.median(power)
-    peaks = np.flatnonzero((power[1:-1] > power[:-2]) & (power[1:-1] >= power[2:])) + 1
-    peaks = peaks[power[peaks] > snr * floor]
+    tc = (t - t.mean()) / span
+    taper = np.sin(np.pi * (t - t[0]) / span) ** 2
+    lines = [float(f) for f in known_hz]
     out: list[float] = []
-    for p in peaks[np.argsort(power[peaks])[::-1]]:
+    for _ in range(max_new):
+        cols = [np.ones_like(tc), tc, tc**2]
+        for f in lines + out:
+            cols += [np.cos(2 * np.pi * f * t), np.sin(2 * np.pi * f * t)]
+        a = np.column_stack(cols)
+        resid = z - a @ np.linalg.lstsq(a, z, rcond=None)[0]
+        freqs, power = _periodogram(t, resid * taper[:, None])
+        ok = freqs >= f_min_hz
+        for g in lines + out:
+            ok &= np.abs(freqs - g) > 4 * res
+        if ok.sum() < 8:
+            break
+        floor = np.median(power[freqs >= f_min_hz])
+        p = int(np.flatnonzero(ok)[np.argmax(power[ok])])
+        if not power[p] > snr * floor or p == 0 or p == len(power) - 1:
+            break
         lo, mid, hi = np.log(power[p - 1:p + 2])
         den = lo - 2 * mid + hi
         f = freqs[p] + (0.5 * (lo - hi) / den if den < 0 else 0.0) * (freqs[1] - freqs[0])
-        if all(abs(f - g) > 4 * res for g in list(known_hz) + out):
-            out.append(float(f))
-        if len(out) >= max_new:
-            break
+        out.append(_refine(t, tc, z, lines + out, float(f), 0.5 * res))
     return np.array(out)
+
+
+def _refine(t, tc, z, others: list[float], f: float, half_width: float) -> float:
+    """The frequency within f +- half_width that leaves the least squared residual of a
+    joint least-squares fit (trend, the other lines, this one); golden-section search."""
+
+    def cost(g: float) -> float:
+        cols = [np.ones_like(tc), tc, tc**2]
+        for h in [*others, g]:
+            cols += [np.cos(2 * np.pi * h * t), np.sin(2 * np.pi * h * t)]
+        a = np.column_stack(cols)
+        r = z - a @ np.linalg.lstsq(a, z, rcond=None)[0]
+        return float(np.sum(r * r))
+
+    lo, hi = f - half_width, f + half_width
+    ratio = 0.5 * (np.sqrt(5.0) - 1.0)
+    x1, x2 = hi - ratio * (hi - lo), lo + ratio * (hi - lo)
+    c1, c2 = cost(x1), cost(x2)
+    for _ in range(16):
+        if c1 < c2:
+            hi, x2, c2 = x2, x1, c1
+            x1 = hi - ratio * (hi - lo)
+            c1 = cost(x1)
+        else:
+            lo, x1, c1 = x1, x2, c2
+            x2 = lo + ratio * (hi - lo)
+            c2 = cost(x2)
+    return 0.5 * (lo + hi)

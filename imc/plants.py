@@ -19,9 +19,10 @@ from correlator.tracker import BlockTracker, extract_blocks
 from imc import streams
 from imc.build import Models, frame_seeds, predicted_px
 
-#: pose keyframes per exposure while the stage holds still, and while it moves
-KEYFRAMES_STILL = 5
-KEYFRAMES_MOVING = 33
+#: pose keyframes per exposure (the attitude's motion inside it), and while the stage moves
+#: other than in a straight line inside the exposure (steps, a piezo's transients)
+KEYFRAMES = 5
+KEYFRAMES_BENT = 33
 
 
 def expose_frame(m: Models, radiance: np.ndarray, gain: float, rng) -> np.ndarray:
@@ -186,10 +187,17 @@ class RenderedPlant(TrackerPlant):
 
         m = self.m
         t0 = float(m.frame_t_s[k])
-        t_samples, _ = stage.samples
-        moving = np.any((t_samples > t0) & (t_samples < t0 + m.exposure_s))
-        n_kf = KEYFRAMES_MOVING if moving else KEYFRAMES_STILL
-        times = t0 + np.linspace(0.0, m.exposure_s, n_kf)
+        t1 = t0 + m.exposure_s
+        t_samples, s_samples = stage.samples
+        inner = (t_samples > t0) & (t_samples < t1)
+        ends = stage(np.array([t0, t1]))
+        bent = False
+        if inner.any():  # is the stage a straight line over the exposure?
+            a = (t_samples[inner] - t0) / m.exposure_s
+            line = ends[0] + a[:, None] * (ends[1] - ends[0])
+            bent = bool(np.max(np.abs(stage(t_samples[inner]) - line)) > 1e-6)
+        times = t0 + np.linspace(0.0, m.exposure_s, KEYFRAMES_BENT if bent else KEYFRAMES)
+        moving = inner.any() or not np.array_equal(ends[0], ends[1])
         offsets = stage(times) if moving else self.stage_mean[k]
         start = time.perf_counter()
         kf = ray_keyframes(m.camera.pose(times), m.camera.focal_plane, offsets,

@@ -86,16 +86,28 @@ class Notch:
     depth_db: float = 30.0
 
     def coefficients(self, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
-        """(b, a) in z^-1 for a loop sampled at rate_hz."""
+        """(b, a) in z^-1 for a loop sampled at rate_hz: poles at radius exp(-pi width /
+        rate), zeros at the radius that gives exactly ``depth_db`` at the centre once the
+        DC gain is normalised to 1 (bisection)."""
         if not 0 < self.frequency_hz < 0.5 * rate_hz:
             raise ValueError(f"notch frequency_hz ({self.frequency_hz:g}) must lie below the "
                              f"loop's Nyquist frequency ({0.5 * rate_hz:g} Hz)")
         w = 2 * np.pi * self.frequency_hz / rate_hz
         rp = float(np.exp(-np.pi * self.width_hz / rate_hz))
-        rz = 1.0 - (1.0 - rp) * 10 ** (-self.depth_db / 20.0)
-        b = np.array([1.0, -2 * rz * np.cos(w), rz * rz])
         a = np.array([1.0, -2 * rp * np.cos(w), rp * rp])
-        return b * (a.sum() / b.sum()), a
+        z = np.exp(1j * w)
+        target = 10 ** (-self.depth_db / 20.0)
+
+        def design(rz: float):
+            b = np.array([1.0, -2 * rz * np.cos(w), rz * rz])
+            b = b * (a.sum() / b.sum())
+            return b, abs(polyval_x(b, z) / polyval_x(a, z))
+
+        lo, hi = rp, 1.0  # depth grows as the zeros approach the unit circle
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if design(mid)[1] > target else (lo, mid)
+        return design(0.5 * (lo + hi))[0], a
 
 
 def _lfilter_step(b: np.ndarray, a: np.ndarray, x_hist: np.ndarray, y_hist: np.ndarray,

@@ -226,10 +226,11 @@ def simulate(plant, estimator, controller, actuator, transport, timeline: Timeli
         inp = ControlInput(t_a, float(timeline.mid_s[k]), est.motion_px - timeline.charge_px[k],
                            rec.stage_cmd_px[k], last_cmd, est.sigma_px, est.valid,
                            timeline.period_s)
-        ctl_state, u = controller.update(ctl_state, inp)
-        u = actuator.clip(np.asarray(u, dtype=np.float64))
-        if not np.array_equal(u, last_cmd):
-            act_state = actuator.command(act_state, t_a, u)
+        ctl_state, u_raw = controller.update(ctl_state, inp)
+        u_raw = np.asarray(u_raw, dtype=np.float64)
+        u = actuator.clip(u_raw)  # what the stage can do: what the loop assumes it did
+        if not np.array_equal(u, last_cmd) or not np.array_equal(u, u_raw):
+            act_state = actuator.command(act_state, t_a, u_raw)  # it clips and counts
             mod_state = model.command(mod_state, t_a, u)
             last_cmd = u
 

@@ -86,9 +86,21 @@ def run_scenario(sc: Scenario, out: Path, save_frames: bool = False, fresh: bool
     t_loop = time.perf_counter()
     truth = compute_truth(m, res.record, res.trajectory)
     metrics = summarize(m, res, truth, parts, link_stats)
+    if sc.metrics.blur_images and m.line_rate_hz is None:
+        from imc.blur import main_imager_study
+
+        metrics["main_imager_blur"] = main_imager_study(m, res.trajectory, truth, out,
+                                                        spp=sc.metrics.blur_spp)
+    else:
+        from imc.blur import write_blur_npz
+
+        metrics["main_imager_blur"] = write_blur_npz(out / "blur.npz", truth, res.trajectory)
     frames = getattr(plant, "frames", None)
     ref_corners = getattr(plant, "ref_corners_rec", None)
     files = write_outputs(m, res, truth, metrics, out, frames, ref_corners, save_frames, rerun)
+    files.append(out / "blur.npz")
+    if (out / "main_imager.png").exists() and sc.metrics.blur_images:
+        files.append(out / "main_imager.png")
     info = {"wall_s": time.perf_counter() - t_start, "loop_s": t_loop - t_start,
             "render_s": getattr(plant, "render_s", 0.0), "resumed_from_frame": resumed_from,
             "checkpoint_bytes": store.total_bytes(), "files": [str(f) for f in files]}

@@ -616,6 +616,11 @@ class PlantConfig(_Model):
 class MetricsConfig(_Model):
     samples_per_frame: int = Field(8, ge=2, le=256,
                                    description="truth samples per tracker exposure")
+    blur_images: bool = Field(False, description="frame imager: render its worst exposure "
+                              "(scene patch and a slanted edge; static, open and closed loop) "
+                              "and measure the edge MTF (main_imager.png)")
+    blur_spp: int = Field(64, ge=1, le=4096, description="samples per pixel of those renders "
+                          "(a square number: the stratified sampler rounds to one)")
 
 
 class Scenario(_Model):

@@ -1,0 +1,236 @@
+"""The main imager's blur as an image: residual-motion PSF and MTF per exposure, and (for a
+frame imager) rendered patches and a slanted edge, open and closed loop.
+
+The PSF of a residual trajectory r(t) over one exposure is the time it spends at each
+position (a 2-D histogram); its MTF is |mean_t exp(-2 pi i f . r(t))| (Wulich & Kopeika
+1987). The slanted-edge MTF follows ISO 12233's method: the edge's position per line, a
+straight-line fit, every pixel binned at a quarter pixel by its distance to the edge (the
+edge spread function), its derivative (line spread), a Hamming window, the FFT, corrected for
+the finite difference. The prediction is the static render's edge MTF (optics, pixel,
+reconstruction filter) times the residual's motion MTF along the edge normal.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from compensation.loop import Trajectory
+from compensation.metrics import NYQUIST
+from imc.build import Models
+from imc.io import atomic_write, write_npz
+from imc.truth import Truth
+
+#: PSF grid: bin size (px) and half-width (px) at least
+PSF_BIN_PX = 0.02
+PSF_MIN_HALF_PX = 0.5
+#: frequencies of the 2-D MTF, cycles/px (0 .. 1, Nyquist at the middle)
+MTF_FREQS = np.linspace(-1.0, 1.0, 41)
+
+
+def psf_image(r_px: np.ndarray, half_px: float, bin_px: float = PSF_BIN_PX) -> np.ndarray:
+    """Time-weighted histogram (G, G) of a residual trajectory r (N, 2) (row, col) px on a
+    grid of ``bin_px`` centred on its mean, ``half_px`` each side; sums to 1."""
+    n = int(np.ceil(half_px / bin_px))
+    edges = (np.arange(-n, n + 1)) * bin_px
+    r = np.asarray(r_px) - np.mean(r_px, axis=0)
+    h, _, _ = np.histogram2d(r[:, 0], r[:, 1], bins=[edges, edges])
+    return h / max(h.sum(), 1.0)
+
+
+def mtf_image(r_px: np.ndarray, freqs: np.ndarray = MTF_FREQS) -> np.ndarray:
+    """Motion MTF (F, F) of a trajectory r (N, 2) on a grid of (f_row, f_col), cycles/px."""
+    r = np.asarray(r_px)
+    ph_r = np.exp(-2j * np.pi * freqs[:, None] * r[None, :, 0])  # (F, N)
+    ph_c = np.exp(-2j * np.pi * freqs[:, None] * r[None, :, 1])
+    return np.abs(ph_r @ ph_c.T) / len(r)
+
+
+def window_blur(truth: Truth, trajectory: Trajectory | None) -> dict[str, np.ndarray]:
+    """PSF and MTF images of every main-imager exposure (integration window)."""
+    r = truth.residual_px(trajectory)
+    wins = np.unique(truth.window)
+    span = max(PSF_MIN_HALF_PX, float(np.max(np.abs(r - r.mean(axis=0)))) * 1.05)
+    psf = np.stack([psf_image(r[truth.window == w], span) for w in wins])
+    mtf = np.stack([mtf_image(r[truth.window == w]) for w in wins])
+    return {"psf": psf, "mtf": mtf, "psf_bin_px": np.array(PSF_BIN_PX),
+            "mtf_freqs": MTF_FREQS, "window_start_s": np.array(
+                [truth.t_s[truth.window == w][0] for w in wins]) - 0.5 * (
+                truth.t_s[1] - truth.t_s[0])}
+
+
+def write_blur_npz(path: Path, truth: Truth, trajectory: Trajectory) -> dict:
+    """blur.npz: open- and closed-loop PSF and MTF images per exposure; returns the worst
+    exposure's figures."""
+    open_ = window_blur(truth, None)
+    closed = window_blur(truth, trajectory)
+    nyq = np.argmin(np.abs(MTF_FREQS - NYQUIST))
+    zero = np.argmin(np.abs(MTF_FREQS))
+    worst = int(np.argmin(open_["mtf"][:, nyq, zero]))
+    write_npz(path, **{f"open_{k}": v for k, v in open_.items()},
+              **{f"closed_{k}": v for k, v in closed.items() if k not in ("mtf_freqs",)})
+    return {"worst_window": worst,
+            "worst_window_start_s": float(open_["window_start_s"][worst]),
+            "mtf_nyquist_row_open": float(open_["mtf"][worst, nyq, zero]),
+            "mtf_nyquist_row_closed": float(closed["mtf"][worst, nyq, zero]),
+            "mtf_nyquist_col_open": float(open_["mtf"][worst, zero, nyq]),
+            "mtf_nyquist_col_closed": float(closed["mtf"][worst, zero, nyq])}
+
+
+# ------------------------------------------------------------------------ rendered patches
+
+
+def edge_terrain(m: Models, angle_deg: float = 5.0, albedo=(0.15, 0.6), size_m: float = 320.0,
+                 texel_m: float = 0.1):
+    """A flat tile with a straight albedo edge through the scene centre, at ``angle_deg`` to
+    the main imager's columns (so its normal runs nearly along the rows)."""
+    from scene.terrain import Terrain
+
+    cam = m.main_camera
+    c = cam.focal_plane.center_px
+    g = cam.ground_points(np.array([c + [0.0, -50.0], c + [0.0, 50.0]]), 0.0,
+                          m.terrain.height_at)
+    along = (g[1] - g[0])[:2]
+    along /= np.linalg.norm(along)
+    a = np.deg2rad(angle_deg)
+    rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    normal = rot @ np.array([-along[1], along[0]])
+    n = int(round(size_m / texel_m))
+    xs = (np.arange(n) + 0.5) * texel_m - size_m / 2
+    east, north = np.meshgrid(xs, -xs)  # row 0 = north edge
+    d = east * normal[0] + north * normal[1]
+    alb = np.where(d > 0, albedo[1], albedo[0]).astype(np.float64)
+    spacing = size_m / 40.0
+    return Terrain(alb, texel_m, np.zeros((41, 41)), spacing)
+
+
+def render_patch(m: Models, renderer, t0_s: float, t1_s: float,
+                 stage: Trajectory | None, moving: bool = True, keyframes: int = 65
+                 ) -> np.ndarray:
+    """One exposure [t0, t1] of a patch of the main imager (the renderer's film) around its
+    centre: the poses move (or are frozen at mid-exposure), the stage follows ``stage`` (or
+    rests); the optics' MTF is applied."""
+    from camera.geometry import FocalPlane
+    from scene.pinhole import ray_keyframes
+
+    cam = m.main_camera
+    fp0 = cam.focal_plane
+    fp = FocalPlane(fp0.focal_length_m, fp0.pixel_pitch_m, renderer.rows, renderer.cols,
+                    fp0.center_offset_px)
+    times = np.linspace(t0_s, t1_s, keyframes)
+    pose_t = times if moving else np.full(keyframes, 0.5 * (t0_s + t1_s))
+    offsets = stage(times) if stage is not None else np.zeros((keyframes, 2))
+    kf = ray_keyframes(cam.pose(pose_t), fp, offsets, renderer.z_start_m)
+    img = renderer.render(kf, seed=int(1e6 * t0_s) & 0x7FFFFFFF)
+    return m.optics.apply(img)
+
+
+def edge_mtf(img: np.ndarray, oversample: int = 4, margin: int = 8):
+    """(freqs cycles/px, MTF) across a nearly horizontal edge (ISO 12233 slanted edge)."""
+    im = np.asarray(img, dtype=np.float64)[margin:-margin, margin:-margin]
+    d = np.diff(im, axis=0)
+    rows = np.arange(d.shape[0]) + 0.5
+    w = np.abs(d)
+    pos = (w * rows[:, None]).sum(axis=0) / np.maximum(w.sum(axis=0), 1e-12)
+    cols = np.arange(im.shape[1])
+    fit = np.polyfit(cols, pos, 1)
+    rr, cc = np.mgrid[0:im.shape[0], 0:im.shape[1]]
+    dist = (rr - np.polyval(fit, cc)) / np.sqrt(1.0 + fit[0] ** 2)
+    b = np.round(dist * oversample).astype(int)
+    lo = b.min()
+    counts = np.bincount((b - lo).ravel())
+    esf = np.bincount((b - lo).ravel(), weights=im.ravel()) / np.maximum(counts, 1)
+    keep = counts > 0
+    idx = np.flatnonzero(keep)
+    esf = np.interp(np.arange(len(esf)), idx, esf[keep])
+    half = 16 * oversample  # +-16 px around the edge
+    centre = -lo
+    esf = esf[max(0, centre - half):centre + half]
+    lsf = np.diff(esf) * np.hamming(len(esf) - 1)
+    spec = np.abs(np.fft.rfft(lsf))
+    spec /= spec[0]
+    f = np.fft.rfftfreq(len(lsf), 1.0 / oversample)
+    corr = np.sinc(f / oversample)  # the finite difference's transfer function
+    return f, spec / np.maximum(corr, 1e-6)
+
+
+def _at(f: np.ndarray, mtf: np.ndarray, f0: float) -> float:
+    return float(np.interp(f0, f, mtf))
+
+
+def main_imager_study(m: Models, trajectory: Trajectory, truth: Truth, out: Path,
+                      spp: int = 64, size_px: int = 192) -> dict:
+    """Render the main imager's worst exposure (open loop) as a patch of the scene and of a
+    slanted edge: static, open and closed loop; measure the edge MTF at Nyquist against the
+    prediction; write main_imager.png and edge_mtf.png."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from scene.kernel import Renderer, Sun
+
+    figures = write_blur_npz(out / "blur.npz", truth, trajectory)
+    w = figures["worst_window"]
+    t0 = figures["worst_window_start_s"]
+    t1 = t0 + truth.window_s
+    sun = Sun(*m.sun_deg)
+    scene_r = Renderer(m.terrain, sun, size_px, size_px, spp=spp, clouds=m.clouds)
+    patches = {name: render_patch(m, scene_r, t0, t1, stage, moving)
+               for name, stage, moving in (("static", None, False), ("open loop", None, True),
+                                           ("closed loop", trajectory, True))}
+    edge_r = Renderer(edge_terrain(m), sun, size_px, size_px, spp=spp)
+    edges = {name: render_patch(m, edge_r, t0, t1, stage, moving)
+             for name, stage, moving in (("static", None, False), ("open loop", None, True),
+                                         ("closed loop", trajectory, True))}
+    curves = {k: edge_mtf(v) for k, v in edges.items()}
+    f_static, mtf_static = curves["static"]
+    sel = truth.window == w
+    result = {"window_start_s": t0, "window_s": truth.window_s, "spp": spp}
+    for name, traj in (("open loop", None), ("closed loop", trajectory)):
+        r = truth.residual_px(traj)[sel]
+        motion = np.abs(np.mean(np.exp(-2j * np.pi * f_static[:, None] * r[None, :, 0]),
+                                axis=1))
+        f, mtf = curves[name]
+        key = name.split()[0]
+        result[f"edge_mtf_nyquist_{key}"] = _at(f, mtf, NYQUIST)
+        result[f"predicted_mtf_nyquist_{key}"] = _at(f_static, mtf_static * motion, NYQUIST)
+        result[f"motion_mtf_nyquist_{key}"] = _at(f_static, motion, NYQUIST)
+    result["edge_mtf_nyquist_static"] = _at(f_static, mtf_static, NYQUIST)
+    result["optics_mtf_nyquist"] = float(m.optics.mtf(NYQUIST))
+    result.update({k: v for k, v in figures.items()})
+
+    fig, axes = plt.subplots(2, 3, figsize=(10.5, 7.2), dpi=110)
+    for ax, (name, img) in zip(axes[0], patches.items(), strict=True):
+        ax.imshow(img, cmap="gray", vmin=np.percentile(patches["static"], 1),
+                  vmax=np.percentile(patches["static"], 99))
+        ax.set_title(name)
+        ax.axis("off")
+    blur = np.load(out / "blur.npz")
+    n = blur["open_psf"].shape[1] // 2
+    ext = [-n * PSF_BIN_PX, n * PSF_BIN_PX, n * PSF_BIN_PX, -n * PSF_BIN_PX]
+    for ax, key, title in ((axes[1][0], "open_psf", "residual PSF, open loop"),
+                           (axes[1][1], "closed_psf", "residual PSF, closed loop")):
+        ax.imshow(blur[key][w], cmap="magma", extent=ext)
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel("col (px)")
+        ax.set_ylabel("row (px)")
+    ax = axes[1][2]
+    for name, (f, mtf) in curves.items():
+        ax.plot(f, mtf, label=f"{name} (edge)")
+    ax.plot(f_static, mtf_static * np.abs(np.mean(np.exp(
+        -2j * np.pi * f_static[:, None] * truth.residual_px(None)[sel][None, :, 0]), axis=1)),
+            "k:", label="predicted, open loop")
+    ax.axvline(NYQUIST, color="0.7", lw=0.8)
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1.05)
+    ax.set_xlabel("cycles/px (across the edge: rows)")
+    ax.set_title("slanted-edge MTF", fontsize=9)
+    ax.legend(fontsize=7)
+    fig.suptitle(f"{m.scenario.name}: main imager, exposure {t0:.2f}-{t1:.2f} s "
+                 f"(the worst open-loop one)", fontsize=10)
+    fig.tight_layout()
+    atomic_write(out / "main_imager.png", lambda p: fig.savefig(p, format="png"))
+    plt.close(fig)
+    return result

@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.imcsim-installed
 
-.PHONY: setup demo test lint bench bench-table2 bench-optical clean
+.PHONY: setup demo test lint bench bench-table2 bench-optical bench-loop clean
 
 setup: $(STAMP)
 	@sh scripts/ensure-llvm.sh
@@ -18,6 +18,7 @@ $(STAMP): pyproject.toml
 demo: setup
 	$(BIN)/imc info
 	$(BIN)/imc run scenarios/quickstart.yaml --out runs/quickstart --save-frames
+	$(BIN)/imc loop scenarios/quickstart.yaml --out runs/quickstart/loop
 
 test: setup
 	RERUN_TELEMETRY_ENABLED=0 $(BIN)/python -m pytest -q
@@ -42,6 +43,10 @@ bench-table2: setup
 # the optical correlator emulation: accuracy vs SNR and block size, cost of each effect
 bench-optical: setup
 	$(BIN)/python benchmarks/bench_optical.py
+
+# the compensation loop: every target of the loop issue (~10 min on 2 cores)
+bench-loop: setup
+	$(BIN)/python benchmarks/bench_loop.py
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache .ruff_cache *.egg-info

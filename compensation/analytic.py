@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 import numpy as np
 
@@ -70,6 +70,35 @@ def _pulse_trajectory(act, phi: float, period: float, end: float) -> Trajectory:
     st, tt, ss = act.advance(st, end)
     traj.append(tt, ss)
     return traj
+
+
+@lru_cache(maxsize=64)
+def _pulse(actuator, period: float, exposure: float, phi: float):
+    """See :attr:`LoopModel.pulse`."""
+    act = actuator.linearized()
+    res = getattr(act, "resonance_hz", None)
+    damp = getattr(act, "damping", 1.0)
+    settle = 40.0 / (damp * 2 * np.pi * res) if res else 0.0
+    m = min(int(np.ceil(max(0.3, settle) / period)) + 5, 20000)
+    traj = _pulse_trajectory(act, phi, period, m * period)
+    ideal = _pulse_trajectory(actuator.command_model(), phi, period, m * period)
+    p = np.array([traj.mean(k * period, k * period + exposure)[0] for k in range(m)])
+    q = np.array([ideal.mean(k * period, k * period + exposure)[0] for k in range(m)])
+    t, s = traj.samples
+    return p, q, t.copy(), s[:, 0].copy(), act.interpolation
+
+
+@lru_cache(maxsize=64)
+def _stage_response(actuator, period: float, exposure: float, phi: float,
+                    f_bytes: bytes) -> np.ndarray:
+    """See :meth:`LoopModel.stage_response` (cached per actuator, timing and frequencies)."""
+    f = np.frombuffer(f_bytes, dtype=np.float64)
+    _, _, t, s, interp = _pulse(actuator, period, exposure, phi)
+    out = np.empty(len(f), dtype=np.complex128)
+    for i in range(0, len(f), 256):  # bounded memory: (256, samples) at a time
+        w = 2 * np.pi * f[i:i + 256]
+        out[i:i + 256] = _piecewise_fourier(t, s, w, interp, t[-1] + period) / period
+    return out
 
 
 @dataclass(frozen=True)
@@ -122,25 +151,13 @@ class LoopModel:
         phi = max(0.0, lag - n * self.period_s)
         return n, phi
 
-    @cached_property
+    @property
     def pulse(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, str]:
         """(p, q, t, s, interpolation): window means of the stage's and the ideal response to
-        one unit command held over one period from tick 0, and the stage's trajectory."""
+        one unit command held over one period from tick 0, and the stage's trajectory
+        (cached per actuator and timing: a design search reuses it)."""
         n, phi = self.timing
-        t_per = self.period_s
-        act = self.actuator.linearized()
-        res = getattr(act, "resonance_hz", None)
-        damp = getattr(act, "damping", 1.0)
-        settle = 40.0 / (damp * 2 * np.pi * res) if res else 0.0
-        m = int(np.ceil(max(0.3, settle) / t_per)) + 5
-        m = min(m, 20000)
-        traj = _pulse_trajectory(act, phi, t_per, m * t_per)
-        ideal = _pulse_trajectory(self.actuator.command_model(), phi, t_per, m * t_per)
-        p = np.array([traj.mean(k * t_per, k * t_per + self.exposure_s)[0] for k in range(m)])
-        q = np.array([ideal.mean(k * t_per, k * t_per + self.exposure_s)[0]
-                      for k in range(m)])
-        t, s = traj.samples
-        return p, q, t, s[:, 0], act.interpolation
+        return _pulse(self.actuator, self.period_s, self.exposure_s, phi)
 
     # -- transfer functions -----------------------------------------------------------------
     def _z(self, f_hz) -> np.ndarray:
@@ -193,10 +210,10 @@ class LoopModel:
 
     def stage_response(self, f_hz) -> np.ndarray:
         """H(w) / T: the stage's first-harmonic response to a held command sequence."""
-        _, _, t, s, interp = self.pulse
-        w = 2 * np.pi * np.atleast_1d(np.asarray(f_hz, dtype=np.float64))
-        t_end = t[-1] + self.period_s
-        return _piecewise_fourier(t, s, w, interp, t_end) / self.period_s
+        f = np.atleast_1d(np.asarray(f_hz, dtype=np.float64))
+        n, phi = self.timing
+        return _stage_response(self.actuator, self.period_s, self.exposure_s, phi,
+                               f.tobytes()).copy()
 
     def averaging(self, f_hz) -> np.ndarray:
         """W(w): the tracker exposure's averaging of a sinusoid."""

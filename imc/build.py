@@ -21,7 +21,7 @@ from correlator.optical import OpticalJtc
 from correlator.timing import PipelineTiming, Schedule
 from correlator.tracker import BlockTracker, block_grid
 from imc import streams
-from imc.scenario import CloudsConfig, Scenario, ScenarioError
+from imc.scenario import CloudsConfig, Scenario, ScenarioError, make_block
 from orbit.attitude import Attitude, orbit_looking_at
 from orbit.frames import LocalFrame
 from orbit.jitter import JitterTerm, RandomJitter, WheelJitter, realize_jitter
@@ -365,7 +365,6 @@ def build_loop(m: Models, channel=None, plant_sigma_px: float | None = None) -> 
     checked on the analytic loop model (unstable or marginal: a ScenarioError naming the
     field and the margin)."""
     from compensation.analytic import LoopModel, design_lines
-    from compensation.blocks import build
     from compensation.controllers import FeedbackController
     from compensation.loop import Timeline
     from compensation.transport import Transport
@@ -392,25 +391,24 @@ def build_loop(m: Models, channel=None, plant_sigma_px: float | None = None) -> 
                           drop_probability=comp.transport.drop_probability,
                           seed=tuple(streams.key(sc.seed, "drops")), channel=channel)
     try:
-        estimator = build("estimator", comp.estimator.kind, field_point_px=m.field_point_px,
-                          **comp.estimator.params())
+        estimator = make_block("estimator", comp.estimator.kind, comp.estimator.params(),
+                               {"field_point_px": m.field_point_px})
         aparams = comp.actuator.params()
         if comp.actuator.kind == "piezo" and aparams.get("update_hz") is None:
             res = aparams.get("resonance_hz", 357.0)
             aparams["update_hz"] = piezo_update_hz(rate, res)
-        if comp.actuator.kind == "ideal" and aparams.get("ramp"):
-            aparams["ramp_s"] = period
-        actuator = build("actuator", comp.actuator.kind, **aparams)
+        wired = {"ramp_s": period} if comp.actuator.kind == "ideal" else {}
+        actuator = make_block("actuator", comp.actuator.kind, aparams, wired)
         cparams = comp.controller.params()
+        wired = {"rate_hz": 1.0 / period}
         if comp.controller.kind == "kalman":
             if comp.controller.option("feedforward"):
-                cparams["nominal_px"] = nominal_target(m)
+                wired["nominal_px"] = nominal_target(m)
             if cparams.get("lead_s") is None:
                 cparams["lead_s"] = actuator.lag_s
-        controller = build("controller", comp.controller.kind, rate_hz=1.0 / period,
-                           **cparams)
+        controller = make_block("controller", comp.controller.kind, cparams, wired)
     except (TypeError, ValueError) as e:
-        raise ScenarioError(f"compensation: {e}") from None
+        raise ScenarioError(f"compensation: {str(e).replace('@', '')}") from None
     sigma = (plant_sigma_px or getattr(controller, "noise_px", None) or 0.02)
     model = LoopModel(1.0 / period, m.exposure_s, latency + device_lag, controller, actuator,
                       float(sigma))

@@ -463,6 +463,18 @@ class CorrelatorConfig(_Model):
         return PipelineTiming(**t.model_dump(exclude={"enabled"}))
 
 
+def make_block(role: str, kind: str, params: dict, wired: dict | None = None):
+    """The block ``kind`` of ``role`` built from a scenario's parameters (validated and
+    converted by pydantic, nested dataclasses included) plus the ``wired`` ones the wiring
+    derives from the rest of the scenario."""
+    from pydantic import TypeAdapter
+
+    from compensation.blocks import block_class
+
+    check_params(role, kind, params)
+    return TypeAdapter(block_class(role, kind)).validate_python({**params, **(wired or {})})
+
+
 def check_params(role: str, kind: str, params: dict) -> None:
     """Validate a block's parameters against its class (pydantic on the dataclass); a
     ValueError '@field@ message' names the offending parameter."""

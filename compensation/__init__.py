@@ -11,16 +11,16 @@ from compensation.blocks import (
     MotionEstimate,
     Plant,
     Transport,
-    build,
-    kinds,
     register,
 )
 from compensation.loop import Chunk, LoopRecord, LoopResult, Timeline, Trajectory, simulate
 from compensation.metrics import ResidualMetrics, motion_mtf, residual_metrics
+from compensation.registry import block_class, build, kinds
 
 __all__ = [
     "Actuator", "BlockMeasurements", "Chunk", "ControlInput", "Controller", "Estimator",
     "LoopModel", "LoopRecord", "LoopResult", "Margins", "MotionEstimate", "Plant",
-    "ResidualMetrics", "Timeline", "Trajectory", "Transport", "build", "design_lines", "kinds",
+    "ResidualMetrics", "Timeline", "Trajectory", "Transport", "block_class", "build",
+    "design_lines", "kinds",
     "measured_rejection", "motion_mtf", "register", "residual_metrics", "simulate",
 ]

@@ -217,7 +217,8 @@ class Plant(Protocol):
         ...
 
 
-#: kind -> class, per role; filled by :func:`register` when the block modules are imported
+#: kind -> class, per role; filled by :func:`register` as the block modules are imported
+#: (compensation.registry imports the built-in ones)
 _REGISTRY: dict[str, dict[str, type]] = {"estimator": {}, "controller": {}, "actuator": {}}
 
 
@@ -232,34 +233,3 @@ def register(role: str, kind: str):
         return cls
 
     return deco
-
-
-def kinds(role: str) -> tuple[str, ...]:
-    """The registered kinds of a role ('estimator', 'controller', 'actuator')."""
-    _load_kinds()
-    return tuple(sorted(_REGISTRY[role]))
-
-
-def block_class(role: str, kind: str) -> type:
-    """The class registered as ``kind`` for ``role``; a clear ValueError otherwise."""
-    _load_kinds()
-    try:
-        return _REGISTRY[role][kind]
-    except KeyError:
-        raise ValueError(f"unknown {role} kind {kind!r}; choose one of {kinds(role)}") from None
-
-
-def build(role: str, kind: str, **params) -> Any:
-    """An instance of the registered ``kind`` for ``role``.
-
-    A class may name ``WIRED`` parameters: the ones the wiring derives from the rest of a
-    scenario (rates, the field point), which a scenario may not set.
-    """
-    return block_class(role, kind)(**params)
-
-
-def _load_kinds() -> None:
-    """Import the modules that register the built-in kinds."""
-    import compensation.actuators  # noqa: F401
-    import compensation.controllers  # noqa: F401
-    import compensation.estimators  # noqa: F401

@@ -172,10 +172,6 @@ class LoopResult:
     transport_stats: dict[str, int] = field(default_factory=dict)
 
 
-def _meas_arrays(prefix: str, meas: BlockMeasurements) -> dict[str, np.ndarray]:
-    return to_arrays(prefix, meas)
-
-
 def simulate(plant, estimator, controller, actuator, transport, timeline: Timeline,
              enabled: bool = True, resume: list[Chunk] | None = None,
              on_chunk: Callable[[Chunk], None] | None = None, chunk_frames: int = 10,
@@ -323,7 +319,7 @@ def _make_chunk(a, b, rec, traj, cmd, marks, plant, pending, est_state, ctl_stat
     arrays["state/last_cmd"] = np.asarray(last_cmd).copy()
     arrays["pending/t"] = np.array([p[0] for p in pending])
     for i, (_, m) in enumerate(pending):
-        arrays.update(_meas_arrays(f"pending/{i}", m))
+        arrays.update(to_arrays(f"pending/{i}", m))
     for name, arr in plant.chunk_arrays(a, b).items():
         arrays[f"plant/{name}"] = arr
     return Chunk(a, b, arrays)

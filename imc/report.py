@@ -57,6 +57,7 @@ def summarize(m: Models, res: LoopResult, truth: Truth, parts: LoopParts,
             "latency_s": float(parts.model.latency_s),
             "analytic": parts.margins.to_dict(),
             "measurements_delivered": int(np.isfinite(rec.arrive_s).sum()),
+            "measurements_lost": int(res.transport_stats.get("lost", 0)),
             "estimates_valid": int(rec.motion_valid.sum()),
             "outlier_fraction": float(rec.outliers.sum() / max(rec.used.sum()
                                                                + rec.outliers.sum(), 1)),

@@ -469,7 +469,7 @@ def make_block(role: str, kind: str, params: dict, wired: dict | None = None):
     derives from the rest of the scenario."""
     from pydantic import TypeAdapter
 
-    from compensation.blocks import block_class
+    from compensation.registry import block_class
 
     check_params(role, kind, params)
     return TypeAdapter(block_class(role, kind)).validate_python({**params, **(wired or {})})
@@ -480,7 +480,7 @@ def check_params(role: str, kind: str, params: dict) -> None:
     ValueError '@field@ message' names the offending parameter."""
     from pydantic import TypeAdapter
 
-    from compensation.blocks import block_class, kinds
+    from compensation.registry import block_class, kinds
 
     try:
         cls = block_class(role, kind)

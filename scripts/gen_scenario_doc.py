@@ -82,7 +82,7 @@ def _value(v) -> str:
 
 def block_kinds(model: type[BlockConfig], prefix: str, out: list[str]) -> None:
     """The kinds registered for a block role and their parameters (from the classes)."""
-    from compensation.blocks import block_class, kinds
+    from compensation.registry import block_class, kinds
 
     for kind in kinds(model.ROLE):
         cls = block_class(model.ROLE, kind)

@@ -8,7 +8,7 @@ import pytest
 from scipy.signal import lfilter
 
 from compensation.actuators import IdealStage, PiezoStage, _cycle_width
-from compensation.blocks import BlockMeasurements, ControlInput, build, kinds
+from compensation.blocks import BlockMeasurements, ControlInput
 from compensation.controllers import (
     PI,
     PII,
@@ -20,6 +20,7 @@ from compensation.controllers import (
 )
 from compensation.estimators import MeanEstimator, MotionFieldEstimator
 from compensation.loop import Trajectory
+from compensation.registry import build, kinds
 from compensation.transport import Transport
 
 

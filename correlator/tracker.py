@@ -58,7 +58,8 @@ class BlockTracker:
 
     def update(self, frame: np.ndarray, predicted_px: np.ndarray | None = None,
                rng: np.random.Generator | None = None,
-               index: np.ndarray | None = None) -> ShiftResult:
+               index: np.ndarray | None = None,
+               flow: np.ndarray | None = None) -> ShiftResult:
         """Shifts of the reference blocks' content in ``frame``.
 
         ``predicted_px`` (n, 2), optional: the motion expected from orbit and attitude. Each
@@ -69,10 +70,19 @@ class BlockTracker:
         prediction's sub-pixel remainder and skips the integer search where the result settles
         within that distance of it. ``rng``: noise of an emulated optical correlator;
         ``index``: measure only these blocks (results for them).
+
+        ``flow`` (n, B, B, 2), optional: the predicted motion of every pixel q of each
+        reference block, where perspective and relief parallax deform the content since the
+        reference (long stares). Each block of ``frame`` is then resampled (cubic spline) at
+        q + flow(q), so the correlator sees the reference's geometry and measures only the
+        unpredicted translation; the result is that plus the flow at the block's centre.
         """
         frame = np.asarray(frame)
         sel = np.arange(len(self.corners)) if index is None else np.asarray(index, dtype=int)
         base = self.corners[sel]
+        if flow is not None:
+            return self._warped(frame, np.asarray(flow, dtype=np.float64)[sel], sel, rng,
+                                index)
         if predicted_px is None:
             return self.correlator.measure(extract_blocks(frame, base, self.block_px), rng,
                                            index)
@@ -87,5 +97,27 @@ class BlockTracker:
         res = self.correlator.measure(extract_blocks(frame, safe, self.block_px), rng, index,
                                       predicted=(pred - step) if trusted else None)
         shift = np.where(inside[:, None], res.shift + step, np.nan)
+        return ShiftResult(shift, res.valid & inside, np.where(inside, res.peak, 0.0),
+                           np.where(inside[:, None], res.crlb, np.inf))
+
+    def _warped(self, frame, flow, sel, rng, index) -> ShiftResult:
+        """:meth:`update` through a predicted flow (see there)."""
+        from scipy.ndimage import map_coordinates, spline_filter
+
+        b = self.block_px
+        base = self.corners[sel]
+        q = np.stack(np.meshgrid(np.arange(b), np.arange(b), indexing="ij"), axis=-1)
+        src = q[None] + base[:, None, None, :] + flow  # (n, B, B, 2)
+        h, w = frame.shape
+        inside = np.all((src.min(axis=(1, 2)) >= 0) & (src.max(axis=(1, 2)) <= [h - 1, w - 1]),
+                        axis=1)
+        coeffs = spline_filter(frame.astype(np.float64), order=3)
+        blocks = map_coordinates(coeffs, [src[..., 0].ravel(), src[..., 1].ravel()], order=3,
+                                 mode="nearest", prefilter=False).reshape(len(sel), b, b)
+        res = self.correlator.measure(blocks, rng, index)
+        c = (b - 1) / 2.0  # the flow at the block centre (bilinear between the 4 middle pixels)
+        lo, hi = int(np.floor(c)), int(np.ceil(c))
+        centre = 0.25 * (flow[:, lo, lo] + flow[:, lo, hi] + flow[:, hi, lo] + flow[:, hi, hi])
+        shift = np.where(inside[:, None], res.shift + centre, np.nan)
         return ShiftResult(shift, res.valid & inside, np.where(inside, res.peak, 0.0),
                            np.where(inside[:, None], res.crlb, np.inf))

@@ -19,6 +19,10 @@ from correlator.tracker import BlockTracker, extract_blocks
 from imc import streams
 from imc.build import Models, frame_seeds, predicted_px
 
+#: a block's predicted deformation (px across it) beyond which the tracker resamples the
+#: current frame through it (long stares), instead of cutting a plain block
+WARP_MIN_PX = 0.05
+
 #: pose keyframes per exposure (the attitude's motion inside it), and while the stage moves
 #: other than in a straight line inside the exposure (steps, a piezo's transients)
 KEYFRAMES = 5
@@ -60,7 +64,8 @@ class TrackerPlant:
         self.ref_corners = m.corners.copy()
         self.gain = 0.0
         self.tracker: BlockTracker | None = None
-        self._ground: dict[tuple[int, bytes], np.ndarray] = {}
+        self._ground: dict[tuple, np.ndarray] = {}  # ground points per reference
+        self._pix: np.ndarray | None = None
 
     # -- the image model, per fidelity --------------------------------------------------------
     def radiance(self, k: int, stage) -> np.ndarray:
@@ -97,6 +102,8 @@ class TrackerPlant:
             self.tracker = BlockTracker(self.frames[ref], self.ref_corners, b, m.correlator)
         centers = BlockTracker.centers_from(self.ref_corners, b)
         pred = predicted_px(m, centers, ref, k, self.stage_mean[ref], self.stage_mean[k])
+        deform, content, field = self._prediction(centers, ref, k)
+        warp = not m.chain and float(deform.max()) > WARP_MIN_PX
         todo = np.flatnonzero(blocks)
         shift = np.full((nb, 2), np.nan)
         sigma = np.full((nb, 2), np.inf)
@@ -105,14 +112,33 @@ class TrackerPlant:
         if len(todo):
             res = self.tracker.update(self.frames[k], pred, streams.rng(m.scenario.seed,
                                                                         "optical", k),
-                                      todo if len(todo) < nb else None)
+                                      todo if len(todo) < nb else None,
+                                      flow=self._flow(ref, k) if warp else None)
             shift[todo], valid[todo], peak[todo] = res.shift, res.valid, res.peak
             sigma[todo] = np.where(res.valid[:, None], res.crlb, np.inf)
         self.ref_corners_rec[k] = self.ref_corners
-        deform, content, field = self._prediction(centers, ref, k)
+        # resampled through the predicted flow, a block is no longer deformed
         return BlockMeasurements(k, t0 + 0.5 * m.exposure_s, np.full(nb, ref), centers, shift,
-                                 sigma, valid, peak, deform, np.full(nb, m.chain), content,
-                                 field)
+                                 sigma, valid, peak, np.zeros(nb) if warp else deform,
+                                 np.full(nb, m.chain), content, field)
+
+    def _flow(self, ref: int, k: int) -> np.ndarray:
+        """The predicted motion (B, b, b, 2) of every pixel of every reference block from
+        frame ref to k (its own ground point through the DEM: relief parallax included),
+        stage change included, px."""
+        m, b = self.m, self.block_px
+        key = ("flow", ref, self.ref_corners.tobytes())
+        if key not in self._ground:
+            q = np.stack(np.meshgrid(np.arange(b), np.arange(b), indexing="ij"), axis=-1)
+            pix = q[None] + self.ref_corners[:, None, None, :]
+            ground = m.camera.ground_points(pix.reshape(-1, 2) + self.stage_mean[ref],
+                                            float(m.frame_mid_s[ref]), m.terrain.height_at)
+            self._ground[key] = ground
+            self._pix = pix
+        mo = m.camera.image_motion_px(self._ground[key], m.frame_mid_s[k:k + 1],
+                                      float(m.frame_mid_s[ref]), nominal=True)[0]
+        flow = mo.reshape(self._pix.shape)
+        return flow - (self.stage_mean[k] - self.stage_mean[ref])
 
     def _prediction(self, centers: np.ndarray, ref: int, k: int):
         """The orbit/attitude/DEM prediction (no jitter) from frame ref to k: each block's
@@ -128,6 +154,7 @@ class TrackerPlant:
             self._ground = {key: m.camera.ground_points(pts + self.stage_mean[ref],
                                                          float(m.frame_mid_s[ref]),
                                                          m.terrain.height_at)}
+            self._pix = None
         mo = m.camera.image_motion_px(self._ground[key], m.frame_mid_s[k:k + 1],
                                       float(m.frame_mid_s[ref]), nominal=True)[0]
         blocks = mo[:-1].reshape(len(centers), 5, 2)

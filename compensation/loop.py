@@ -230,12 +230,20 @@ def simulate(plant, estimator, controller, actuator, transport, timeline: Timeli
             mod_state = model.command(mod_state, t_a, u)
             last_cmd = u
 
+    def deliver_until(t_s: float) -> None:
+        """Deliver every pending measurement that arrives before t_s, in time order."""
+        pending.sort(key=lambda p: p[0])
+        while pending and pending[0][0] < t_s - TIME_EPS * max(1.0, t_s):
+            deliver(*pending.pop(0))
+
+    def finish() -> None:
+        deliver_until(timeline.end_s)
+        advance(timeline.end_s)
+
     for k in range(start, n):
         t0 = float(timeline.frame_t_s[k])
         t1 = t0 + timeline.exposure_s
-        pending.sort(key=lambda p: p[0])
-        while pending and pending[0][0] < t1 - TIME_EPS * max(1.0, t1):
-            deliver(*pending.pop(0))
+        deliver_until(t1)
         advance(t1)
         rec.stage_cmd_px[k] = cmd.mean(t0, t1)
         blocks = transport.blocks(k, nb)
@@ -256,19 +264,13 @@ def simulate(plant, estimator, controller, actuator, transport, timeline: Timeli
         last = k == n - 1
         if on_chunk is not None and (k + 1 - chunk_start >= chunk_frames or last):
             if last:
-                pending.sort(key=lambda p: p[0])
-                while pending and pending[0][0] < timeline.end_s:
-                    deliver(*pending.pop(0))
-                advance(timeline.end_s)
+                finish()  # the last chunk holds the run's end
             on_chunk(_make_chunk(chunk_start, k + 1, rec, traj, cmd, marks, plant, pending,
                                  est_state, ctl_state, act_state, mod_state, tr_state,
                                  last_cmd))
             chunk_start = k + 1
     if on_chunk is None or start >= n:
-        pending.sort(key=lambda p: p[0])
-        while pending and pending[0][0] < timeline.end_s:
-            deliver(*pending.pop(0))
-        advance(timeline.end_s)
+        finish()
     return LoopResult(rec, traj, cmd, n, actuator.saturated_s(act_state),
                       {"estimator": est_state, "controller": ctl_state, "actuator": act_state},
                       dataclasses.asdict(tr_state))

@@ -64,8 +64,8 @@ class TrackerPlant:
         self.ref_corners = m.corners.copy()
         self.gain = 0.0
         self.tracker: BlockTracker | None = None
-        self._ground: dict[tuple, np.ndarray] = {}  # ground points per reference
-        self._pix: np.ndarray | None = None
+        self._ground: dict[str, np.ndarray] = {}  # ground points of the current reference
+        self._ground_key: tuple = ()
 
     # -- the image model, per fidelity --------------------------------------------------------
     def radiance(self, k: int, stage) -> np.ndarray:
@@ -127,18 +127,25 @@ class TrackerPlant:
         frame ref to k (its own ground point through the DEM: relief parallax included),
         stage change included, px."""
         m, b = self.m, self.block_px
-        key = ("flow", ref, self.ref_corners.tobytes())
-        if key not in self._ground:
-            q = np.stack(np.meshgrid(np.arange(b), np.arange(b), indexing="ij"), axis=-1)
-            pix = q[None] + self.ref_corners[:, None, None, :]
-            ground = m.camera.ground_points(pix.reshape(-1, 2) + self.stage_mean[ref],
-                                            float(m.frame_mid_s[ref]), m.terrain.height_at)
-            self._ground[key] = ground
-            self._pix = pix
-        mo = m.camera.image_motion_px(self._ground[key], m.frame_mid_s[k:k + 1],
+        q = np.stack(np.meshgrid(np.arange(b), np.arange(b), indexing="ij"), axis=-1)
+        pix = q[None] + self.ref_corners[:, None, None, :]
+        ground = self._ground_of("flow", ref, pix.reshape(-1, 2))
+        mo = m.camera.image_motion_px(ground, m.frame_mid_s[k:k + 1],
                                       float(m.frame_mid_s[ref]), nominal=True)[0]
-        flow = mo.reshape(self._pix.shape)
-        return flow - (self.stage_mean[k] - self.stage_mean[ref])
+        return mo.reshape(pix.shape) - (self.stage_mean[k] - self.stage_mean[ref])
+
+    def _ground_of(self, name: str, ref: int, pixels: np.ndarray) -> np.ndarray:
+        """Ground points (N, 3) seen at reference pixels (N, 2) in frame ref (the stage it
+        was exposed with included), intersected once per reference."""
+        key = (ref, self.ref_corners.tobytes())
+        if key != self._ground_key:
+            self._ground, self._ground_key = {}, key
+        if name not in self._ground:
+            m = self.m
+            self._ground[name] = m.camera.ground_points(pixels + self.stage_mean[ref],
+                                                        float(m.frame_mid_s[ref]),
+                                                        m.terrain.height_at)
+        return self._ground[name]
 
     def _prediction(self, centers: np.ndarray, ref: int, k: int):
         """The orbit/attitude/DEM prediction (no jitter) from frame ref to k: each block's
@@ -149,13 +156,8 @@ class TrackerPlant:
         offs = np.array([[0.0, 0.0], [-h, -h], [-h, h], [h, -h], [h, h]])
         pts = np.vstack([(centers[:, None, :] + offs[None]).reshape(-1, 2),
                          np.asarray(m.field_point_px)[None]])
-        key = (ref, centers.tobytes())
-        if key not in self._ground:
-            self._ground = {key: m.camera.ground_points(pts + self.stage_mean[ref],
-                                                         float(m.frame_mid_s[ref]),
-                                                         m.terrain.height_at)}
-            self._pix = None
-        mo = m.camera.image_motion_px(self._ground[key], m.frame_mid_s[k:k + 1],
+        ground = self._ground_of("blocks", ref, pts)
+        mo = m.camera.image_motion_px(ground, m.frame_mid_s[k:k + 1],
                                       float(m.frame_mid_s[ref]), nominal=True)[0]
         blocks = mo[:-1].reshape(len(centers), 5, 2)
         deform = np.max(np.linalg.norm(blocks[:, 1:] - blocks[:, :1], axis=-1), axis=1)

@@ -306,9 +306,9 @@ class SceneConfig(_Model):
         "paper's classes (urban, rural, mountain with snow and clouds, waves, calm_water), "
         "or geotiff (user data)")
     center_lat_deg: float = Field(35.0, ge=-89.0, le=89.0, description="scene centre lat, "
-                                  "deg (geotiff in UTM or lat/lon: the file's centre instead)")
+                                  "deg (geotiff: the file's centre instead)")
     center_lon_deg: float = Field(10.0, ge=-180.0, le=360.0, description="scene centre lon, "
-                                  "deg (geotiff in UTM or lat/lon: the file's centre instead)")
+                                  "deg (geotiff: the file's centre instead)")
     size_m: float = Field(512.0, gt=0.0, description="tile side (square), m; geotiff: the "
                           "image's extent")
     texel_m: float = Field(0.4, gt=0.0, description="albedo texel size, m; geotiff: its pixel")
@@ -330,6 +330,10 @@ class SceneConfig(_Model):
         if (self.sun_elevation_deg is None) != (self.sun_azimuth_deg is None):
             raise ValueError("give both sun_elevation_deg and sun_azimuth_deg, or neither "
                              "(the sun then follows orbit.epoch_utc)")
+        c = self.clouds
+        if c is not None and c.cell_m > 1.5 * c.base_height_m:
+            raise ValueError("clouds.cell_m exceeds 1.5 x clouds.base_height_m: the cloud layer "
+                             "would be less than 2 cells wide; lower clouds.cell_m")
         if (self.kind == "geotiff") != (self.geotiff is not None):
             raise ValueError("kind 'geotiff' needs the geotiff section (ortho, dem), and the "
                              "geotiff section needs kind 'geotiff'")

@@ -291,9 +291,11 @@ def run(
 @_guarded
 def show_metrics(out_dir: Path = typer.Argument(..., help="a run's output folder")) -> None:
     """Print the summary table of a finished run."""
-    path = out_dir / "metrics.json" if out_dir.is_dir() else out_dir
-    name = short(str(path), 200)
+    path, name = out_dir, short(str(out_dir), 200)
     try:
+        if out_dir.is_dir():
+            path = out_dir / "metrics.json"
+            name = short(str(path), 200)
         if path.stat().st_size > 50_000_000:
             _fail(f"{name}: larger than any metrics.json of imcsim; give a run's folder")
         metrics = json.loads(path.read_text(encoding="utf-8"))

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import typing
 from datetime import date, datetime, timezone
 from pathlib import Path
 from typing import Annotated, ClassVar, Literal
@@ -40,11 +41,29 @@ def _finite_magnitude(v):
     return v
 
 
+def _expects_number(annotation) -> bool:
+    """True if a field's type is int or float (optional, annotated or in a tuple)."""
+    if annotation in (int, float):
+        return True
+    return any(_expects_number(a) for a in typing.get_args(annotation)
+               if isinstance(a, type) or typing.get_args(a))
+
+
 class _Model(BaseModel):
     """Every section: unknown keys are errors, and every float is finite (no NaN, no inf)
-    and of magnitude <= MAX_MAGNITUDE."""
+    and of magnitude <= MAX_MAGNITUDE; true / false is not a number."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_bool_numbers(cls, v, info):
+        items = v if isinstance(v, list | tuple) else (v,)
+        if any(isinstance(x, bool) for x in items):
+            field = cls.model_fields.get(info.field_name)
+            if field is not None and _expects_number(field.annotation):
+                raise ValueError("give a number, not true / false")
+        return v
 
     @field_validator("*", mode="after")
     @classmethod
@@ -587,6 +606,10 @@ def check_params(role: str, kind: str, params: dict) -> None:
                          f"{', '.join(kinds(role))}") from None
     wired = getattr(cls, "WIRED", ())
     names = {f.name for f in dataclasses.fields(cls) if f.init}
+    try:
+        hints = typing.get_type_hints(cls)
+    except Exception:  # noqa: BLE001 (an unresolvable hint: no bool check for that class)
+        hints = {}
     for key, value in params.items():
         if key in wired:
             raise ValueError(f"@{key}@ is set by imcsim from the rest of the scenario; "
@@ -595,6 +618,8 @@ def check_params(role: str, kind: str, params: dict) -> None:
             allowed = ", ".join(sorted(names - set(wired)))
             raise ValueError(f"@{short(key, 40)}@ unknown parameter of {role} kind {kind!r} "
                              f"(allowed: {allowed})")
+        if isinstance(value, bool) and _expects_number(hints.get(key)):
+            raise ValueError(f"@{key}@ give a number, not true / false")
         bad = _bad_number(value)
         if bad is not None:
             raise ValueError(f"@{key}{bad[0]}@ must be a finite number of magnitude <= "

@@ -239,7 +239,8 @@ def run(
     sc = load_scenario(scenario)
     out_dir = _out_dir(out_raw)
     _size_check(sc, force)
-    remove_stale_temps(out_dir)
+    for folder in (out_dir, out_dir / "checkpoint"):  # what a killed write left
+        remove_stale_temps(folder)
     try:
         choice = choose_variant()
     except VariantError as e:

@@ -35,7 +35,7 @@ CLOUD_BYTES_PER_CELL = 75.0
 CLOUD_MESH_BYTES_PER_CELL = 48.0
 #: the interpreter with numpy, scipy, numba (validate) and Mitsuba / Dr.Jit (rendered runs)
 BASE_BYTES = 300e6
-RENDER_BASE_BYTES = 450e6
+RENDER_BASE_BYTES = 600e6
 #: a validate builds the full terrain up to this many texels; above, a flat stand-in
 LIGHT_TEXELS = 1024 * 1024
 #: the truth's samples (pose, projection, motion, charge), bytes per sample
@@ -146,8 +146,8 @@ def _truth_samples(sc: Scenario) -> float:
     return span / dt + 16.0
 
 
-def _tdi_line_rate_hz(sc: Scenario) -> float:
-    """The synchronous line rate, roughly: ground speed over the ground sample distance."""
+def _ground_flow(sc: Scenario) -> tuple[float, float]:
+    """(ground speed m/s, nadir ground sample distance m), roughly, from the orbit."""
     o, c = sc.orbit, sc.camera
     alt = o.altitude_m if o.kind in ("sun_synchronous", "circular") else (
         (o.semi_major_axis_m or 6_378_137.0 + 681e3) - 6_378_137.0 if o.kind == "elements"
@@ -155,7 +155,33 @@ def _tdi_line_rate_hz(sc: Scenario) -> float:
     alt = max(alt, 150e3)
     mu, r_e = 3.986004418e14, 6_378_137.0
     v_ground = math.sqrt(mu / (r_e + alt)) * r_e / (r_e + alt)
-    return v_ground * c.focal_length_m / (alt * c.pixel_pitch_m)
+    return v_ground, alt * c.pixel_pitch_m / c.focal_length_m
+
+
+def _tdi_line_rate_hz(sc: Scenario) -> float:
+    """The synchronous line rate, roughly: ground speed over the ground sample distance."""
+    v, gsd = _ground_flow(sc)
+    return v / gsd
+
+
+def _reach_px(sc: Scenario) -> float:
+    """How far (px) the image moves over the run, roughly: the ground's flow when scanning,
+    plus the jitter's amplitudes (the texture plant's margins)."""
+    c = sc.camera
+    ifov = c.pixel_pitch_m / c.focal_length_m
+    v, gsd = _ground_flow(sc)
+    flow = 0.0 if sc.attitude.mode == "target" else v * sc.duration_s / gsd
+    j = sc.attitude.jitter
+
+    def px(urad, p):
+        return p if p is not None else urad * 1e-6 / ifov
+
+    amp = sum(px(s.amplitude_urad, s.amplitude_px) for s in j.sinusoids)
+    amp += sum(4.0 * px(r.rms_urad, r.rms_px) for r in j.random)
+    amp += sum(px(h.amplitude_urad, h.amplitude_px) * (1.0 + abs(w.speed_rate_hz_per_s)
+                                                      * sc.duration_s / w.speed_hz) ** 2
+               for w in j.wheels for h in w.harmonics)
+    return flow + amp + 32.0
 
 
 def estimate_run(sc: Scenario) -> RunEstimate:
@@ -190,7 +216,9 @@ def estimate_run(sc: Scenario) -> RunEstimate:
                              + px * (24.0 + 4.0 * sc.scene.spp))
     elif fidelity == "texture":
         n_key = sc.duration_s / 0.1 + 2
-        parts["plant"] = px * (64.0 + 8.0 * n_key) + 48.0 * frames * 4
+        reach = _reach_px(sc)
+        parts["plant"] = (px * (64.0 + 8.0 * n_key) + 96.0 * frames * 4
+                          + 24.0 * (t.rows + 2 * reach) * (t.cols + 2 * reach))
     parts = {k: v for k, v in parts.items() if v > 0}
     # the terrain's generation temporaries are freed before the loop starts
     steady = sum(v for k, v in parts.items() if k != "terrain") + 4.0 * texels
@@ -248,7 +276,8 @@ def _fields_of(sc: Scenario, part: str) -> str:
         return (f"camera.tracker.rows x cols x scene.spp = {t.rows} x {t.cols} x {s.spp} "
                 "(and the tile's texels)")
     if part == "plant":
-        return "camera.tracker.rows x cols x duration_s (the texture plant's motion maps)"
+        return ("camera.tracker.rows x cols, duration_s and the image's motion (the texture "
+                "plant's motion maps and margins; attitude.mode, attitude.jitter)")
     return part
 
 

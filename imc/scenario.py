@@ -435,13 +435,28 @@ class MainImagerConfig(_Model):
                            "the imager's exposures from start_s on)")
 
 
+#: the tracker's widest field of view, rad (its corner rays must still meet the ground)
+MAX_TRACKER_FOV_RAD = 0.5
+
+
 class CameraConfig(_Model):
-    focal_length_m: float = Field(10.0, gt=0.0, description="focal length, m")
-    pixel_pitch_m: float = Field(12e-6, gt=0.0, lt=1e-3, description="pixel pitch, m")
+    focal_length_m: float = Field(10.0, ge=1e-3, le=1e3, description="focal length, m")
+    pixel_pitch_m: float = Field(12e-6, ge=1e-7, lt=1e-3, description="pixel pitch, m")
     optics: OpticsConfig = OpticsConfig()
     radiometry: RadiometryConfig = RadiometryConfig()
     tracker: TrackerSensorConfig = TrackerSensorConfig()
     main_imager: MainImagerConfig = MainImagerConfig()
+
+    @model_validator(mode="after")
+    def _field_of_view(self) -> CameraConfig:
+        t = self.tracker
+        fov = max(t.rows, t.cols) * self.pixel_pitch_m / self.focal_length_m
+        if fov > MAX_TRACKER_FOV_RAD:
+            raise ValueError(f"the tracker sees {fov:.3g} rad across (max(tracker.rows, cols) "
+                             "x pixel_pitch_m / focal_length_m); at most "
+                             f"{MAX_TRACKER_FOV_RAD} rad: raise focal_length_m or lower "
+                             "pixel_pitch_m")
+        return self
 
 
 class SlmConfig(_Model):

@@ -2,7 +2,8 @@
 
 Classes (issue 17): scenarios mutated from the bundled ones (types, NaN / inf / huge numbers,
 YAML tags, duplicate keys, deep nesting, anchors, long strings, epochs), in-range extremes
-(every numeric field at its bounds), bad command-line arguments, bad ``--out`` paths, and
+(every numeric field at its bounds and at +-1e12, +-1e-300) through ``imc validate`` and
+through ``imc run`` on a small scenario, bad command-line arguments, bad ``--out`` paths, and
 damaged checkpoints. Every case runs ``imc`` in a subprocess with a time limit.
 
     .venv/bin/python scripts/fuzz_inputs.py --cases 400 --seed 1 --out runs/fuzz
@@ -175,6 +176,9 @@ def extremes(base: dict) -> list[tuple[str, str, bool]]:
             if sub and prefix.count(".") < 4 and not str(ann).startswith("tuple"):
                 walk(sub[0], f"{prefix}{name}.")
                 continue
+            if "float" in str(ann):  # in the schema's range unless a bound says otherwise
+                for v in (1e12, -1e12, 1e-300, -1e-300):
+                    out.append((f"{prefix}{name}", v, False))
             for m in f.metadata:
                 for attr, inside in (("ge", True), ("le", True), ("gt", False), ("lt", False)):
                     b = getattr(m, attr, None)
@@ -303,7 +307,7 @@ def checkpoint_cases(tmp: Path) -> list[dict]:
                                        (d / "checkpoint" / ".chunk_0000050.npz.imctmp-q.npz")
                                        .write_text("x")),
     }
-    out = []
+    out = [_killed_run(tmp, scen, want)]
     for name, damage in damages.items():
         d = tmp / f"ckpt_{name.replace(' ', '_')}"
         shutil.rmtree(d, ignore_errors=True)
@@ -324,6 +328,33 @@ def checkpoint_cases(tmp: Path) -> list[dict]:
                 detail = "stale temp files left"
         out.append({"case": name, "verdict": v, "rc": r["rc"], "detail": detail})
     return out
+
+
+def _killed_run(tmp: Path, scen: Path, want: dict) -> dict:
+    """kill -9 once 3 chunks are written, then run again: the resumed metrics must match."""
+    import signal
+
+    d = tmp / "ckpt_killed"
+    shutil.rmtree(d, ignore_errors=True)
+    p = subprocess.Popen(IMC + ["run", str(scen), "--out", str(d), "--no-rerun"], env=ENV,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and p.poll() is None:
+        if len(list((d / "checkpoint").glob("chunk_*.npz"))) >= 3:
+            p.send_signal(signal.SIGKILL)
+            break
+        time.sleep(0.01)
+    p.wait()
+    killed = p.returncode == -signal.SIGKILL
+    r = run(["run", str(scen), "--out", str(d), "--no-rerun"], 300)
+    v = verdict(r, False)
+    detail = r["stdout"].strip().splitlines()[-2:] if r["stdout"] else r["stderr"][-300:]
+    if v == "ok":
+        where = _differs(json.loads((d / "metrics.json").read_text()), want)
+        if where:
+            v, detail = "silent", f"resumed metrics differ at {where}"
+    return {"case": f"kill -9 after 3 chunks ({'killed' if killed else 'ran to the end'})",
+            "verdict": v, "rc": r["rc"], "detail": str(detail)}
 
 
 def _flip(p: Path) -> None:
@@ -355,7 +386,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--out", type=Path, default=ROOT / "runs" / "fuzz")
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--skip", default="", help="comma list: mutated,extremes,cli,checkpoints")
+    ap.add_argument("--skip", default="",
+                    help="comma list: mutated,extremes,runs,cli,checkpoints")
     args = ap.parse_args()
     tmp = args.out
     tmp.mkdir(parents=True, exist_ok=True)
@@ -388,6 +420,33 @@ def main() -> None:
                  extremes(bases["quickstart"])]
         with ThreadPoolExecutor(args.jobs) as pool:
             results["extremes"] = list(pool.map(one, enumerate(cases, start=5000)))
+    if "runs" not in skip:  # in-range extremes through `imc run` (small, fast scenario)
+        tiny = {"name": "tiny", "duration_s": 0.05, "camera": {"tracker": {"rows": 64,
+                                                                           "cols": 64}},
+                "correlator": {"block_px": 32, "n_blocks": 1},
+                "scene": {"size_m": 256, "texel_m": 0.4, "dem_spacing_m": 4,
+                          "sun_elevation_deg": 50, "sun_azimuth_deg": 140}}
+        cases = extremes(tiny)
+
+        def run_one(i_case):
+            i, (label, text, invalid) = i_case
+            data = yaml.safe_load(text)
+            data.setdefault("plant", {})["fidelity"] = "rendered" if i % 2 else "texture"
+            f = tmp / f"run_{i:04d}.yaml"
+            f.write_text(yaml.safe_dump(data))
+            r = run(["run", str(f), "--out", str(tmp / f"run_{i:04d}"), "--no-rerun"], 300)
+            v = verdict(r, invalid)
+            detail = (r["stderr"] + r["stdout"]).strip()[-300:]
+            if v == "ok" and r["rc"] == 0:
+                m = json.loads((tmp / f"run_{i:04d}" / "metrics.json").read_text())
+                if m["with_compensation"]["rms_total_px"] is None:
+                    v, detail = "suspicious", "exit 0 with no residual RMS"
+                shutil.rmtree(tmp / f"run_{i:04d}", ignore_errors=True)
+            return {"case": f"tiny {data['plant']['fidelity']}: {label}", "verdict": v,
+                    "rc": r["rc"], "wall_s": round(r["wall_s"], 2), "detail": detail}
+
+        with ThreadPoolExecutor(args.jobs) as pool:
+            results["runs"] = list(pool.map(run_one, enumerate(cases, start=8000)))
     if "cli" not in skip:
         def cli_one(c):
             label, argv, invalid = c

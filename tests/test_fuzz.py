@@ -27,15 +27,18 @@ BASES = {p.stem: yaml.safe_load(p.read_text()) for p in sorted((ROOT / "scenario
 TIME_LIMIT_S = 5.0
 
 
-def _leaves(node, path=()):
-    if isinstance(node, dict):
-        for k, v in node.items():
-            yield from _leaves(v, path + (k,))
-    elif isinstance(node, list):
-        for i, v in enumerate(node):
-            yield from _leaves(v, path + (i,))
-    elif path:
-        yield path, node
+def _script():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("fuzz_inputs",
+                                                  ROOT / "scripts" / "fuzz_inputs.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+_SCRIPT = _script()
+_leaves, _set = _SCRIPT.leaves, _SCRIPT.set_at  # the fuzz script's tree walk
 
 
 def _mappings(node, path=()):
@@ -53,7 +56,7 @@ BAD_NUMBERS = [math.nan, math.inf, -math.inf, 1e308, -1e308, 10**400, "abc", "",
 BAD_OTHERS = [12345, 1.5, [1], {"a": 1}, None]
 BAD_BOOLS = ["maybe", 7, [True], {"a": 1}]
 LEAVES = [(name, path, v) for name, data in BASES.items() for path, v in _leaves(data)
-          if path != ("name",) or not isinstance(v, str)]
+          if path and (path != ("name",) or not isinstance(v, str))]
 MAPPINGS = [(name, path) for name, data in BASES.items() for path in _mappings(data)]
 TEXTS = [  # (appended YAML, the words the one line must hold)
     ("camera: {}\n", "duplicate key camera"),
@@ -71,13 +74,6 @@ DATES = [("2026-13-01", "month must be in 1..12"), ("2026-02-30", "day is out of
 
 def _dotted(path) -> str:
     return ".".join(str(p) for p in path)
-
-
-def _set(data, path, value):
-    node = data
-    for k in path[:-1]:
-        node = node[k]
-    node[path[-1]] = value
 
 
 @st.composite

@@ -16,6 +16,8 @@ import numpy as np
 import pytest
 import yaml
 from conftest import QUICKSTART, ROOT
+from test_scenario_cli import _quickstart_with as _quickstart
+from test_scenario_cli import _write
 from typer.testing import CliRunner
 
 from imc.cli import app, main
@@ -23,22 +25,6 @@ from imc.scenario import OrbitConfig, ScenarioError, _Model, load_scenario, pars
 
 runner = CliRunner()
 
-
-def _write(tmp_path: Path, text: str, name: str = "s.yaml") -> Path:
-    p = tmp_path / name
-    p.write_text(text)
-    return p
-
-
-def _quickstart(**changes) -> dict:
-    data = yaml.safe_load(QUICKSTART.read_text())
-    for dotted, value in changes.items():
-        node = data
-        *parents, leaf = dotted.split(".")
-        for key in parents:
-            node = node.setdefault(key, {})
-        node[leaf] = value
-    return data
 
 
 def _one_line_error(res, *words) -> str:
@@ -254,10 +240,11 @@ def test_validate_prints_the_estimate_and_stays_light():
     assert est.parts["terrain"] > 1.5e9  # the 4800^2 procedural tile of the run
 
 
-def test_estimate_bounds_a_measured_run(tmp_path):
-    """The estimate is an upper-end figure: at least the measured peak (and not wildly
-    above it) for a small rendered run and for a terrain generation."""
-    data = _quickstart(duration_s=0.1, **{"camera.tracker.rows": 128,
+@pytest.mark.parametrize("fidelity", ["rendered", "texture", "analytic"])
+def test_estimate_bounds_a_measured_run(tmp_path, fidelity):
+    """The estimate is an upper-end figure: at least the measured peak of a small run (and
+    not wildly above it)."""
+    data = _quickstart(duration_s=0.1, **{"camera.tracker.rows": 128, "plant.fidelity": fidelity,
                                           "camera.tracker.cols": 128, "scene.size_m": 256})
     p = _write(tmp_path, yaml.safe_dump(data))
     code = ("import resource, sys; from imc.cli import main; sys.argv[1:] = ['run', "

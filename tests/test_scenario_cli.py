@@ -25,7 +25,7 @@ def _quickstart_with(**changes) -> dict:
         node = data
         *parents, leaf = dotted.split(".")
         for key in parents:
-            node = node[key]
+            node = node.setdefault(key, {})
         node[leaf] = value
     return data
 

@@ -247,10 +247,12 @@ def test_estimate_bounds_a_measured_run(tmp_path, fidelity):
     data = _quickstart(duration_s=0.1, **{"camera.tracker.rows": 128, "plant.fidelity": fidelity,
                                           "camera.tracker.cols": 128, "scene.size_m": 256})
     p = _write(tmp_path, yaml.safe_dump(data))
-    code = ("import resource, sys; from imc.cli import main; sys.argv[1:] = ['run', "
+    # VmHWM: this process's peak (ru_maxrss would carry the parent's from before exec)
+    code = ("import re, sys; from imc.cli import main; sys.argv[1:] = ['run', "
             f"{str(p)!r}, '--out', {str(tmp_path / 'o')!r}, '--no-rerun']\n"
             "try: main()\nexcept SystemExit as e: rc = e.code\n"
-            "print('PEAK', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024, rc)")
+            "hwm = re.search(r'VmHWM:\\s+(\\d+)', open('/proc/self/status').read()).group(1)\n"
+            "print('PEAK', int(hwm) * 1024, rc)")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=300, env={**os.environ, "RERUN_TELEMETRY_ENABLED": "0"})
     peak, rc = proc.stdout.split("PEAK")[1].split()

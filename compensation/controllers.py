@@ -404,6 +404,8 @@ class KalmanPredictor:
             raise ValueError(f"bandwidth_hz must be > 0, got {self.bandwidth_hz}")
         if not self.window_s > 0 or not self.every_s > 0:
             raise ValueError("window_s and every_s must be > 0")
+        if any(not f > 0 for f in self.lines_hz):
+            raise ValueError(f"lines_hz must hold frequencies > 0 Hz, got {list(self.lines_hz)}")
 
     # -- model ----------------------------------------------------------------------------
     def _bw(self) -> float:

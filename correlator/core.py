@@ -206,6 +206,11 @@ class CorrelatorOptions:
         if self.jtc_filter == "plain" and not self.joint_plane:
             raise ValueError("jtc_filter='plain' needs joint_plane=True (the fast path has no "
                              "DC terms to keep)")
+        for name in ("psr_threshold", "max_shift_px", "max_crlb_px", "min_overlap",
+                     "max_rival_ratio", "trust_prediction_px"):
+            v = getattr(self, name)
+            if v is not None and not np.isfinite(v):  # NaN would pass every test below
+                raise ValueError(f"{name} must be a finite number, got {v}")
         if self.psr_threshold < 0 or self.iterations < 0 or self.max_crlb_px <= 0:
             raise ValueError("psr_threshold and iterations must be >= 0, max_crlb_px > 0")
         if self.max_shift_px is not None and self.max_shift_px < 0:
@@ -248,7 +253,7 @@ def _sanitise(blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         b = np.where(np.isfinite(b), b, 0.0).astype(np.float32)
         mean = np.where(finite, mean, b.mean(axis=(1, 2), dtype=np.float64))
     clean = b - mean.astype(np.float32)[:, None, None]
-    flat = clean.reshape(len(b), -1)
+    flat = clean.reshape(len(b), b.shape[1] * b.shape[2])  # explicit: (0, H, W) too
     std = np.sqrt(np.einsum("ij,ij->i", flat, flat, dtype=np.float64) / flat.shape[1])
     top = flat.max(axis=1)
     saturated = np.count_nonzero(flat >= top[:, None], axis=1) > flat.shape[1] // 2

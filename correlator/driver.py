@@ -373,6 +373,36 @@ class LoopbackLink:
                 "crc_errors": st.crc_errors, "garbage_bytes": st.garbage_bytes,
                 "duplicates": st.duplicates, "reconnects": st.reconnects}
 
+    def state(self) -> dict[str, np.ndarray]:
+        """What a resumed run needs to continue this link exactly: the driver's counters and
+        the sequence number it expects, the device's next sequence number and its fault
+        generator, and which sequence numbers were heartbeats."""
+        import json
+
+        st, parser = self.driver.stats, self.driver.parser
+        return {"records": np.array(st.records), "crc_errors": np.array(st.crc_errors),
+                "garbage_bytes": np.array(st.garbage_bytes),
+                "duplicates": np.array(st.duplicates), "reconnects": np.array(st.reconnects),
+                "lost": np.array(st.lost, np.int64),
+                "heartbeats": np.array(sorted(self.heartbeats), np.int64),
+                "seq": np.array(self.device.seq),
+                "last_seq": np.array(-1 if parser.last_seq is None else parser.last_seq),
+                "rng": np.array(json.dumps(self.device.rng.bit_generator.state))}
+
+    def restore(self, state: dict[str, np.ndarray]) -> None:
+        """Continue from :meth:`state` (a KeyError if it lacks a part)."""
+        import json
+
+        st, parser = self.driver.stats, self.driver.parser
+        for name in ("records", "crc_errors", "garbage_bytes", "duplicates", "reconnects"):
+            setattr(st, name, int(state[name]))
+        st.lost = [int(q) for q in state["lost"]]
+        self.heartbeats = {int(q) for q in state["heartbeats"]}
+        self.device.seq = int(state["seq"])
+        last = int(state["last_seq"])
+        parser.last_seq = None if last < 0 else last
+        self.device.rng.bit_generator.state = json.loads(str(state["rng"]))
+
     def close(self) -> None:
         self.driver.close()
         self.device.close()

@@ -21,6 +21,7 @@ from correlator.optical import OpticalJtc
 from correlator.timing import PipelineTiming, Schedule
 from correlator.tracker import BlockTracker, block_grid
 from imc import streams
+from imc.budget import LIGHT_TEXELS, flat_stand_in
 from imc.scenario import CloudsConfig, Scenario, ScenarioError, make_block
 from orbit.attitude import Attitude, orbit_looking_at
 from orbit.frames import LocalFrame
@@ -143,16 +144,20 @@ def build_jitter(sc: Scenario, ifov_rad: float):
 MAX_CLOUD_CELLS = 4096
 
 
-def build_scene(sc: Scenario) -> tuple[Terrain, CloudLayer | None, tuple[float, float],
-                                       tuple[float, float]]:
-    """Terrain, cloud layer, centre (lat, lon) deg and sun (elevation, azimuth) deg."""
+def build_scene(sc: Scenario, light: bool = False
+                ) -> tuple[Terrain, CloudLayer | None, tuple[float, float], tuple[float, float]]:
+    """Terrain, cloud layer, centre (lat, lon) deg and sun (elevation, azimuth) deg.
+    ``light`` (imc validate): a tile above budget.LIGHT_TEXELS is a flat stand-in of the same
+    size and DEM grid, a GeoTIFF is read decimated (<= 2048 px a side), and no cloud layer is
+    built."""
     s = sc.scene
     centre = (s.center_lat_deg, s.center_lon_deg)
     if s.kind == "geotiff":
         g = s.geotiff
         try:
             terrain, file_centre = terrain_from_geotiff(g.ortho, g.dem, s.dem_spacing_m,
-                                                        g.albedo_scale)
+                                                        g.albedo_scale,
+                                                        max_side=2048 if light else None)
         except GeoTiffError as e:
             raise ScenarioError(str(e)) from None
         centre = file_centre or centre
@@ -166,15 +171,20 @@ def build_scene(sc: Scenario) -> tuple[Terrain, CloudLayer | None, tuple[float, 
                 f"{sc.orbit.epoch_utc} at ({centre[0]}, {centre[1]}); choose a daytime epoch "
                 "or set scene.sun_elevation_deg and sun_azimuth_deg")
         sun = (float(el), float(az))
-    if s.kind != "geotiff":
-        terrain = scene_class(s.kind, s.size_m, s.texel_m, s.dem_spacing_m,
-                              streams.rng(sc.seed, "terrain"), s.relief_rms_m,
-                              sun_azimuth_deg=sun[1])
+    if s.kind != "geotiff" and light and round(s.size_m / s.texel_m) ** 2 > LIGHT_TEXELS:
+        terrain = flat_stand_in(s.size_m, s.dem_spacing_m)
+    elif s.kind != "geotiff":
+        try:
+            terrain = scene_class(s.kind, s.size_m, s.texel_m, s.dem_spacing_m,
+                                  streams.rng(sc.seed, "terrain"), s.relief_rms_m,
+                                  sun_azimuth_deg=sun[1])
+        except ValueError as e:
+            raise ScenarioError(f"scene: {e}") from None
     cfg = s.clouds
     if cfg is None and s.kind == "mountain":
         cfg = CloudsConfig()  # the paper's mountain class has snow and clouds
     clouds = None
-    if cfg is not None and cfg.cover > 0.0:
+    if cfg is not None and cfg.cover > 0.0 and not light:
         base = float(np.max(terrain.dem_m)) + cfg.base_height_m
         # wide enough for a 56 deg off-nadir view and a 34 deg sun through the layer
         extent = max(terrain.size_m) + 3.0 * (base + cfg.thickness_m - float(terrain.dem_m.min()))
@@ -184,9 +194,10 @@ def build_scene(sc: Scenario) -> tuple[Terrain, CloudLayer | None, tuple[float, 
     return terrain, clouds, centre, sun
 
 
-def build_models(sc: Scenario) -> Models:
-    """Build orbit, attitude, camera, terrain and loop models; validate the geometry."""
-    terrain, clouds, centre, sun = build_scene(sc)
+def build_models(sc: Scenario, light: bool = False) -> Models:
+    """Build orbit, attitude, camera, terrain and loop models; validate the geometry
+    (``light``: see :func:`build_scene`)."""
+    terrain, clouds, centre, sun = build_scene(sc, light)
     if centre != (sc.scene.center_lat_deg, sc.scene.center_lon_deg):
         sc = sc.model_copy(update={"scene": sc.scene.model_copy(
             update={"center_lat_deg": centre[0], "center_lon_deg": centre[1]})})
@@ -278,7 +289,9 @@ def _correlator_options(sc: Scenario) -> CorrelatorOptions:
         if c.method == "optical":
             OpticalJtc(opts.optical, c.block_px, c.block_px, c.block_px // 4)
     except ValueError as e:
-        raise ScenarioError(f"correlator: {e}") from None
+        msg = str(e)  # the optical model names its field from correlator on
+        raise ScenarioError(f"correlator.{msg}" if msg.startswith("optical.")
+                            else f"correlator: {msg}") from None
     return opts
 
 

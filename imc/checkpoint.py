@@ -2,9 +2,11 @@
 
 ``OUT/checkpoint/`` holds ``meta.json`` (the scenario's digest) and ``chunk_SSSSSSS.npz`` per
 chunk (compensation.loop.Chunk: the chunk's frames and records, the trajectory samples it
-added, every block's state at its end), each written atomically. A run resumes from the
-chunks of its own scenario; a damaged chunk is moved aside (``.bad``) with the ones after
-it, and the run continues from the last good one.
+added, every block's state at its end; imc.pipeline adds the serial link's state), each
+written atomically. A run resumes from the chunks of its own scenario; a damaged chunk is
+moved aside (``.bad``) with the ones after it, and the run continues from the last good
+one; a damaged meta.json moves the whole folder aside, another scenario's checkpoint is
+removed (each with a warning).
 """
 
 from __future__ import annotations
@@ -39,12 +41,29 @@ class ChunkStore:
             shutil.rmtree(self.folder)
 
     def load(self) -> list[Chunk]:
-        """The contiguous chunks of this scenario from frame 0 (empty: start afresh)."""
+        """The contiguous chunks of this scenario from frame 0 (empty: start afresh). A
+        checkpoint of another scenario (or imcsim version) is removed, one whose meta.json
+        is damaged is moved aside (``checkpoint.bad``), each with a warning."""
         meta = self.folder / "meta.json"
+        if not self.folder.is_dir():
+            return []
         try:
-            if json.loads(meta.read_text())["digest"] != self.digest:
-                return []
-        except (OSError, ValueError, KeyError, TypeError):
+            digest = json.loads(meta.read_text())["digest"]
+            if not isinstance(digest, str):
+                raise TypeError("digest is not a string")
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            if meta.exists() or any(self.folder.glob("chunk_*.npz")):
+                bad = self.folder.with_name(self.folder.name + ".bad")
+                if bad.exists():
+                    shutil.rmtree(bad)
+                self.folder.replace(bad)
+                self.warn(f"checkpoint {meta} is damaged ({e.__class__.__name__}); moved the "
+                          f"checkpoint aside to {bad.name}, starting afresh")
+            return []
+        if digest != self.digest:
+            self.warn(f"the checkpoint in {self.folder} is of another scenario or imcsim "
+                      "version; removed it, starting afresh")
+            self.reset()
             return []
         chunks: list[Chunk] = []
         paths = sorted(self.folder.glob("chunk_*.npz"))
@@ -54,8 +73,8 @@ class ChunkStore:
                 with np.load(p, allow_pickle=False) as z:
                     arrays = {k: z[k] for k in z.files}
                 start, stop = int(arrays.pop("__start")), int(arrays.pop("__stop"))
-                if start != expect:
-                    raise ValueError(f"starts at frame {start}, expected {expect}")
+                if start != expect or stop <= start:
+                    raise ValueError(f"holds frames {start}..{stop}, expected {expect}..")
             except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as e:
                 for bad in paths[i:]:
                     bad.replace(bad.with_name(bad.name + ".bad"))

@@ -1,9 +1,21 @@
-"""The ``imc`` command line: run, validate, info."""
+"""The ``imc`` command line: run, validate, info.
+
+Every command ends in one line on bad input (exit 2: the scenario, a file or an argument,
+named with the fix); an internal error (a bug) prints one line saying so and where the full
+traceback was written (``imc-error.log`` in the output folder, or the system's temporary
+folder), exit 1.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import json
+import math
 import sys
+import tempfile
+import time
+import traceback
 from pathlib import Path
 
 import typer
@@ -11,19 +23,126 @@ from rich.console import Console
 from rich.table import Table
 
 from imc.scenario import ScenarioError, load_scenario
+from imc.yamlload import short
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="imcsim: satellite focal-plane image-motion-compensation simulator.")
 err = Console(stderr=True)
 out = Console()
 
+#: where an internal error's traceback goes (a command sets its output folder once checked)
+_log_dir: list[Path] = []
+ERROR_LOG = "imc-error.log"
+
 
 def _fail(msg: str, code: int = 2) -> None:
-    err.print(f"[bold red]error:[/] {msg}", highlight=False, soft_wrap=True)
+    err.print(f"[bold red]error:[/] {_one_line(msg)}", highlight=False, soft_wrap=True,
+              markup=True)
     raise typer.Exit(code)
 
 
+def _one_line(msg: str, limit: int = 600) -> str:
+    """msg on one line, long words (paths, values) shortened, at most ``limit`` characters;
+    rich markup in it is shown as text."""
+    from rich.markup import escape
+
+    words = [w if len(w) <= 120 else short(w, 100) for w in str(msg).split()]
+    return escape(short(" ".join(words), limit))
+
+
+def _internal_error(e: BaseException) -> None:
+    """One line for a bug, the traceback written to a log; exit 1."""
+    text = "".join(traceback.format_exception(e))
+    where = None
+    for folder in (*_log_dir, Path(tempfile.gettempdir())):
+        try:
+            log = Path(folder) / ERROR_LOG
+            log.write_text(f"imcsim {time.strftime('%Y-%m-%d %H:%M:%S')} {sys.argv!r}\n{text}")
+            where = log
+            break
+        except OSError:
+            continue
+    what = f"{e.__class__.__name__}: {e}" if str(e) else e.__class__.__name__
+    saved = f"; the full traceback is in {where}" if where else ""
+    kind = ("ran out of memory (lower the sizes `imc validate` reports)"
+            if isinstance(e, MemoryError) else "internal error (a bug in imcsim; please report "
+            "it)")
+    _fail(f"{kind}: {what}{saved}", code=1)
+
+
+def _guarded(fn):
+    """A command whose unexpected exceptions end in one line (see the module docstring)."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        _log_dir.clear()
+        try:
+            return fn(*args, **kwargs)
+        except (typer.Exit, typer.Abort, typer.TyperException, SystemExit):
+            raise
+        except KeyboardInterrupt:
+            _fail("interrupted", code=130)
+        except ScenarioError as e:
+            _fail(str(e))
+        except OSError as e:  # the disk, a folder that went away: not a bug, not the input
+            name = f"{short(str(e.filename), 200)}: " if e.filename else ""
+            _fail(f"{name}{e.strerror or e} (a file system error)", code=1)
+        except BaseException as e:  # noqa: BLE001 (every other exception is a bug)
+            _internal_error(e)
+
+    return wrapper
+
+
+def _finite(value: float | None) -> float | None:
+    """Option callback: a number option must be finite (nan / inf are refused)."""
+    if value is not None and not math.isfinite(value):
+        raise typer.BadParameter(f"{value} is not a finite number")
+    return value
+
+
+def _out_dir(raw: str, option: str = "--out") -> Path:
+    """The output folder, created and checked writable before any work (exit 2 if not)."""
+    if not raw.strip():
+        _fail(f"{option}: the path is empty (it would write into the current folder); give a "
+              "folder")
+    p = Path(raw)
+    name = short(raw, 120)
+    try:
+        if p.exists() and not p.is_dir():
+            _fail(f"{option} {name}: is a file; give a folder")
+        p.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=p, prefix=".imc-probe-"):
+            pass
+    except (NotADirectoryError, FileExistsError):
+        _fail(f"{option} {name}: a part of the path is a file; give a folder")
+    except PermissionError:
+        _fail(f"{option} {name}: not writable (permission denied); choose another folder")
+    except OSError as e:
+        _fail(f"{option} {name}: cannot use it as a folder ({e.strerror or e})")
+    _log_dir[:] = [p]
+    return p
+
+
+def _size_check(sc, force: bool):
+    """The run's estimate (imc.budget), refused above the budget unless ``force``."""
+    from imc.budget import check_run_size, estimate_run
+    from scene.geotiff import GeoTiffError
+
+    try:
+        est = estimate_run(sc)
+    except GeoTiffError as e:
+        _fail(str(e))
+    check_run_size(sc, est, force)
+    return est
+
+
+def _num(v, fmt: str = ".3f") -> str:
+    """A number of metrics.json (null: a quantity that could not be computed) as text."""
+    return "n/a" if v is None else format(v, fmt)
+
+
 @app.command()
+@_guarded
 def info() -> None:
     """Print the Mitsuba variant imcsim will use and the library versions."""
     import numpy
@@ -44,18 +163,30 @@ def info() -> None:
 
 
 @app.command()
-def validate(scenario: Path = typer.Argument(..., help="scenario YAML")) -> None:
-    """Check a scenario file, its geometry and its loop design without rendering."""
+@_guarded
+def validate(
+    scenario: Path = typer.Argument(..., help="scenario YAML"),
+    force: bool = typer.Option(False, "--force", help="check a run larger than the memory "
+                               "budget or the frame limit anyway"),
+) -> None:
+    """Check a scenario file, its geometry and its loop design without rendering; print the
+    run's size (frames, peak memory)."""
+    from imc.budget import LIGHT_TEXELS
     from imc.build import build_loop, build_models
 
-    try:
-        sc = load_scenario(scenario)
-        parts = build_loop(build_models(sc))
-    except ScenarioError as e:
-        _fail(str(e))
+    sc = load_scenario(scenario)
+    est = _size_check(sc, force)
+    parts = build_loop(build_models(sc, light=True))
     mg = parts.margins
-    out.print(f"{scenario}: ok ({sc.n_frames} frames, {sc.correlator.n_blocks} blocks; "
-              f"loop {sc.compensation.controller.kind}: {_margins_text(mg)})")
+    name = short(str(scenario), 200)
+    out.print(f"{name}: ok ({sc.n_frames} frames, {sc.correlator.n_blocks} blocks; "
+              f"loop {sc.compensation.controller.kind}: {_margins_text(mg)})", highlight=False,
+              soft_wrap=True)
+    out.print(f"run size: {est.text()}", highlight=False, soft_wrap=True)
+    if est.texels > LIGHT_TEXELS and sc.scene.kind != "geotiff":
+        out.print(f"terrain not built ({est.texels / 1e6:.1f} M texels): the geometry was "
+                  "checked on a flat tile of the same size; `imc run` checks it on the terrain",
+                  highlight=False, soft_wrap=True)
 
 
 def _margins_text(mg) -> str:
@@ -75,12 +206,12 @@ def _table(metrics: dict) -> Table:
     o, c = metrics["without_compensation"], metrics["with_compensation"]
 
     def pair(v):
-        return f"{v[0]:.3f} / {v[1]:.3f}"
+        return f"{_num(v[0])} / {_num(v[1])}"
 
     tab.add_row("RMS row / col", pair(o["rms_px"]), pair(c["rms_px"]))
-    tab.add_row("RMS total", f"{o['rms_total_px']:.3f}", f"{c['rms_total_px']:.3f}")
+    tab.add_row("RMS total", _num(o["rms_total_px"]), _num(c["rms_total_px"]))
     tab.add_row("peak-to-peak row / col", pair(o["peak_to_peak_px"]), pair(c["peak_to_peak_px"]))
-    tab.add_row(f"motion MTF @Nyquist row / col ({o['window_s']:.3g} s)",
+    tab.add_row(f"motion MTF @Nyquist row / col ({_num(o['window_s'], '.3g')} s)",
                 pair(o["mtf_nyquist"]), pair(c["mtf_nyquist"]))
     tab.add_row("worst-window MTF row / col", pair(o["mtf_nyquist_worst"]),
                 pair(c["mtf_nyquist_worst"]))
@@ -88,23 +219,31 @@ def _table(metrics: dict) -> Table:
 
 
 @app.command()
+@_guarded
 def run(
     scenario: Path = typer.Argument(..., help="scenario YAML"),
-    out_dir: Path = typer.Option(Path("runs/out"), "--out", help="output folder"),
+    out_raw: str = typer.Option("runs/out", "--out", help="output folder"),
     save_frames: bool = typer.Option(False, "--save-frames", help="also write frames.npz"),
     fresh: bool = typer.Option(False, "--fresh", help="ignore a checkpoint in --out"),
     no_rerun: bool = typer.Option(False, "--no-rerun", help="skip recording.rrd"),
+    force: bool = typer.Option(False, "--force", help="run even above the memory budget or "
+                               "the frame limit (see imc validate)"),
 ) -> None:
     """Run a scenario: render, track, compensate; write metrics, tracks and a recording."""
     from rich.progress import Progress
 
+    from imc.io import remove_stale_temps
     from imc.pipeline import run_scenario
     from scene.variant import VariantError, choose_variant
 
+    sc = load_scenario(scenario)
+    out_dir = _out_dir(out_raw)
+    _size_check(sc, force)
+    for folder in (out_dir, out_dir / "checkpoint"):  # what a killed write left
+        remove_stale_temps(folder)
     try:
-        sc = load_scenario(scenario)
         choice = choose_variant()
-    except (ScenarioError, VariantError) as e:
+    except VariantError as e:
         _fail(str(e))
     if choice.variant.startswith("scalar"):
         err.print(f"[yellow]warning:[/] rendering with Mitsuba {choice.variant}: {choice.reason}",
@@ -122,9 +261,10 @@ def run(
     out.print(_table(metrics))
     t = metrics["tracker"]
     out.print(f"tracker: {t['valid_fraction'] * 100:.1f} % valid, error RMS row/col "
-              f"{t['rms_error_px'][0]:.4f} / {t['rms_error_px'][1]:.4f} px "
-              f"(CRLB {t['median_crlb_px'][0]:.4f} / {t['median_crlb_px'][1]:.4f} px)")
-    out.print(f"residual RMS reduced {metrics['rms_reduction']:.1f}x by the loop")
+              f"{_num(t['rms_error_px'][0], '.4f')} / {_num(t['rms_error_px'][1], '.4f')} px "
+              f"(CRLB {_num(t['median_crlb_px'][0], '.4f')} / "
+              f"{_num(t['median_crlb_px'][1], '.4f')} px)")
+    out.print(f"residual RMS reduced {_num(metrics['rms_reduction'], '.1f')}x by the loop")
     lp = metrics["loop"]
     out.print(f"loop: {lp['fidelity']} plant, {lp['estimator']} estimator, {lp['controller']} "
               f"controller, {lp['actuator']} stage; {lp['measurement_rate_hz']:g} "
@@ -149,24 +289,44 @@ def run(
 
 
 @app.command(name="metrics")
+@_guarded
 def show_metrics(out_dir: Path = typer.Argument(..., help="a run's output folder")) -> None:
     """Print the summary table of a finished run."""
+    path, name = out_dir, short(str(out_dir), 200)
     try:
-        metrics = json.loads((out_dir / "metrics.json").read_text())
-    except (OSError, json.JSONDecodeError) as e:
-        _fail(f"{out_dir}/metrics.json: cannot read ({e})")
-    out.print(_table(metrics))
+        if out_dir.is_dir():
+            path = out_dir / "metrics.json"
+            name = short(str(path), 200)
+        if path.stat().st_size > 50_000_000:
+            _fail(f"{name}: larger than any metrics.json of imcsim; give a run's folder")
+        metrics = json.loads(path.read_text(encoding="utf-8"))
+        table = _table(metrics)
+    except FileNotFoundError:
+        _fail(f"{name}: not found; give the --out folder of a finished `imc run`")
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as e:
+        _fail(f"{name}: cannot read it ({e.__class__.__name__}: {e})")
+    except (KeyError, TypeError, IndexError, AttributeError) as e:
+        _fail(f"{name}: not a metrics file of `imc run` ({e.__class__.__name__}: {e} is "
+              "missing or of the wrong type)")
+    out.print(table)
 
 
 @app.command(name="device-emulator")
+@_guarded
 def device_emulator(
     scenario: Path = typer.Argument(..., help="scenario YAML (its correlator section is used)"),
     link: Path = typer.Option(Path("/tmp/imc-jtoc"), "--link",
                               help="symlink to the pseudo-terminal the device serves"),
-    speed: float = typer.Option(1.0, min=0.0, help="device time / wall time (0: no waiting)"),
-    linger_s: float = typer.Option(2.0, min=0.0, help="heartbeats after the last record, s"),
-    corrupt: float = typer.Option(0.0, min=0.0, max=0.99, help="chance of a flipped bit"),
-    drop: float = typer.Option(0.0, min=0.0, max=0.99, help="chance a record is lost"),
+    speed: float = typer.Option(1.0, min=0.0, max=1e6, callback=_finite,
+                                help="device time / wall time (0: no waiting)"),
+    linger_s: float = typer.Option(2.0, min=0.0, max=86400.0, callback=_finite,
+                                   help="heartbeats after the last record, s"),
+    corrupt: float = typer.Option(0.0, min=0.0, max=0.99, callback=_finite,
+                                  help="chance of a flipped bit"),
+    drop: float = typer.Option(0.0, min=0.0, max=0.99, callback=_finite,
+                               help="chance a record is lost"),
+    force: bool = typer.Option(False, "--force", help="serve a run above the memory budget "
+                               "or the frame limit"),
 ) -> None:
     """Serve a scenario's image-motion records like the hardware correlator, on a pty.
 
@@ -193,6 +353,8 @@ def device_emulator(
             "link": sc.correlator.link.model_copy(update={"kind": "direct"})})
         sc = sc.model_copy(update={"correlator": c, "compensation": sc.compensation.model_copy(
             update={"enabled": False})})
+        _size_check(sc, force)
+        _link_folder(link)
         m = build_models(sc)
     except ScenarioError as e:
         _fail(str(e))
@@ -222,11 +384,31 @@ def device_emulator(
         out.print(f"sent {dev.seq} records ({len(order)} motion) on {link}")
 
 
+def _link_folder(link: Path) -> None:
+    """The folder of --link must exist and be writable (the device's symlink goes there)."""
+    folder = link.parent
+    name = short(str(link), 120)
+    try:
+        if link.is_dir():
+            _fail(f"--link {name}: is a folder; give the path of the symlink to create")
+        if not folder.is_dir():
+            _fail(f"--link {name}: the folder {short(str(folder), 120)} does not exist; create "
+                  "it or choose another path")
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".imc-probe-"):
+            pass
+    except PermissionError:
+        _fail(f"--link {name}: its folder is not writable; choose another path")
+    except OSError as e:
+        _fail(f"--link {name}: cannot use it ({e.strerror or e})")
+
+
 @app.command(name="device-read")
+@_guarded
 def device_read(
     port: str = typer.Argument(..., help="serial port, pty link or pyserial URL"),
-    seconds: float = typer.Option(5.0, min=0.0, help="how long to listen"),
-    baudrate: int = typer.Option(115200, help="line speed"),
+    seconds: float = typer.Option(5.0, min=0.0, max=1e7, callback=_finite,
+                                  help="how long to listen"),
+    baudrate: int = typer.Option(115200, min=50, max=10_000_000, help="line speed"),
 ) -> None:
     """Print the image-motion records a correlator sends, then the link's counters."""
     import time
@@ -236,7 +418,8 @@ def device_read(
     try:
         drv = Driver(port, baudrate=baudrate)
     except Exception as e:  # pyserial raises several types for a missing port
-        _fail(f"{port}: cannot open ({e}); start `imc device-emulator` or check the cable")
+        _fail(f"{short(port, 120)}: cannot open ({e}); start `imc device-emulator` or check "
+              "the cable")
     end = time.monotonic() + seconds
     try:
         with drv:
@@ -255,25 +438,27 @@ def device_read(
 
 
 @app.command(name="loop")
+@_guarded
 def loop_cmd(
     scenario: Path = typer.Argument(..., help="scenario YAML (its loop: rates, latency, "
                                     "controller, actuator)"),
-    out_dir: Path = typer.Option(Path("runs/loop"), "--out", help="folder for loop.png and "
-                                 "loop.json"),
+    out_raw: str = typer.Option("runs/loop", "--out", help="folder for loop.png and "
+                                "loop.json"),
     points: int = typer.Option(12, min=2, max=200, help="sine-sweep frequencies"),
-    amplitude_px: float = typer.Option(0.1, min=1e-4, max=10.0,
+    amplitude_px: float = typer.Option(0.1, min=1e-4, max=10.0, callback=_finite,
                                        help="sine-sweep amplitude, px"),
+    force: bool = typer.Option(False, "--force", help="build a run above the memory budget "
+                               "or the frame limit"),
 ) -> None:
     """Plot the loop's rejection |S(f)| (analytic model) beside a sine sweep of the same
     loop on the analytic plant, with the delay bound; write loop.png and loop.json."""
     from imc.build import build_loop, build_models
     from imc.loopplot import loop_study
 
-    try:
-        sc = load_scenario(scenario)
-        parts = build_loop(build_models(sc))
-    except ScenarioError as e:
-        _fail(str(e))
+    sc = load_scenario(scenario)
+    out_dir = _out_dir(out_raw)
+    _size_check(sc, force)
+    parts = build_loop(build_models(sc, light=True))
     res = loop_study(parts.model, out_dir, n_sweep=points, amplitude_px=amplitude_px,
                      title=sc.name)
     mg = parts.margins
@@ -289,21 +474,37 @@ app.add_typer(bench_app, name="bench")
 
 
 @bench_app.command(name="correlator")
+@_guarded
 def bench_correlator(
-    out_dir: Path = typer.Option(Path("benchmarks/out/correlator"), "--out",
-                                 help="folder for correlator.json/.md and the PNG plots"),
-    pairs: int = typer.Option(300, min=20, help="pairs per method table"),
+    out_raw: str = typer.Option("benchmarks/out/correlator", "--out",
+                                help="folder for correlator.json/.md and the PNG plots"),
+    pairs: int = typer.Option(300, min=20, max=5000, help="pairs per method table"),
     quick: bool = typer.Option(False, help="fewer block sizes, SNRs and repeats"),
-    seed: int = typer.Option(0, help="seed of every random draw"),
+    seed: int = typer.Option(0, min=0, max=2**63 - 1, help="seed of every random draw"),
 ) -> None:
     """Accuracy, validity and speed of every method and of the peers on the same pairs."""
     from correlator.bench import run as run_bench
 
-    run_bench(out_dir, pairs=pairs, quick=quick, seed=seed, log=out.print)
+    run_bench(_out_dir(out_raw), pairs=pairs, quick=quick, seed=seed, log=out.print)
 
 
-def main() -> None:
-    app()
+def main(argv: list[str] | None = None) -> None:
+    """The ``imc`` entry point: bad arguments end in one line too (exit 2)."""
+    try:
+        code = app(argv, prog_name="imc", standalone_mode=False)
+    except typer.TyperException as e:
+        if type(e).__name__ == "NoArgsIsHelpError":  # `imc` or `imc bench` alone: the help
+            out.print(str(e), highlight=False, markup=False)
+            raise SystemExit(0) from None
+        ctx = getattr(e, "ctx", None)
+        where = f" (see {ctx.command_path} --help)" if ctx is not None else ""
+        with contextlib.suppress(typer.Exit):
+            _fail(f"{e.format_message()}{where}", code=getattr(e, "exit_code", 2) or 2)
+        raise SystemExit(getattr(e, "exit_code", 2) or 2) from None
+    except (KeyboardInterrupt, typer.Abort):
+        err.print("[bold red]error:[/] interrupted", highlight=False)
+        raise SystemExit(130) from None
+    raise SystemExit(code or 0)
 
 
 if __name__ == "__main__":

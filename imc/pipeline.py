@@ -74,10 +74,14 @@ def run_scenario(sc: Scenario, out: Path, save_frames: bool = False, fresh: bool
         if fresh:
             store.reset()
         chunks = store.load()
+        on_chunk = store.write
+        if link is not None:  # the link's counters and fault generator go with each chunk
+            chunks = _restore_link(link, chunks, store, warn)
+            on_chunk = _with_link_state(link, store.write)
         resumed_from = chunks[-1].stop if chunks else 0
         res = simulate(plant, parts.estimator, parts.controller, parts.actuator,
                        parts.transport, parts.timeline, enabled=sc.compensation.enabled,
-                       resume=chunks or None, on_chunk=store.write,
+                       resume=chunks or None, on_chunk=on_chunk,
                        chunk_frames=CHECKPOINT_EVERY, progress=progress)
     finally:
         if link is not None:
@@ -105,3 +109,30 @@ def run_scenario(sc: Scenario, out: Path, save_frames: bool = False, fresh: bool
             "render_s": getattr(plant, "render_s", 0.0), "resumed_from_frame": resumed_from,
             "checkpoint_bytes": store.total_bytes(), "files": [str(f) for f in files]}
     return metrics, info
+
+
+def _with_link_state(link, write: Callable) -> Callable:
+    """on_chunk that adds the link's state (``link/...``) to each chunk before writing it."""
+
+    def on_chunk(chunk) -> None:
+        chunk.arrays.update({f"link/{k}": v for k, v in link.state().items()})
+        write(chunk)
+
+    return on_chunk
+
+
+def _restore_link(link, chunks: list, store: ChunkStore, warn) -> list:
+    """The chunks to resume from, the link restored to the last one's state; a checkpoint
+    without the link's state (an older imcsim) is set aside and the run starts afresh."""
+    if not chunks:
+        return chunks
+    state = {k[len("link/"):]: v for k, v in chunks[-1].arrays.items() if k.startswith("link/")}
+    try:
+        link.restore(state)
+    except (KeyError, ValueError, TypeError):
+        if warn is not None:
+            warn("checkpoint lacks the serial link's state (written by an older imcsim); "
+                 "starting afresh")
+        store.reset()
+        return []
+    return chunks

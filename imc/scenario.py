@@ -9,23 +9,106 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-from datetime import datetime
+import typing
+from datetime import date, datetime, timezone
 from pathlib import Path
-from typing import ClassVar, Literal
+from typing import Annotated, ClassVar, Literal
 
 import numpy as np
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from correlator.optical import EFFECTS, JtocModel, SensorSpec, SlmSpec
+from imc.yamlload import YamlInputError, load_yaml, read_text, short
 
 
 class ScenarioError(ValueError):
     """A scenario file that cannot be used; the message is one line naming the field."""
 
 
+#: largest magnitude of any number in a scenario (products of a few stay far from overflow)
+MAX_MAGNITUDE = 1e12
+#: the epochs imcsim can propagate: its orbit, sun and time models count nanoseconds in
+#: int64 (numpy datetime64[ns]: 1678-09-21 .. 2262-04-11), less a day for the run itself
+EPOCH_MIN = datetime(1678, 9, 22)
+EPOCH_MAX = datetime(2262, 4, 10)
+
+
+def _finite_magnitude(v):
+    """v, if every float in it (a number or a tuple of numbers) is at most MAX_MAGNITUDE."""
+    for x in v if isinstance(v, tuple | list) else (v,):
+        if isinstance(x, float) and not abs(x) <= MAX_MAGNITUDE:
+            raise ValueError(f"must be a finite number of magnitude <= {MAX_MAGNITUDE:g}")
+    return v
+
+
+def _expects_number(annotation) -> bool:
+    """True if a field's type is int or float (optional, annotated or in a tuple)."""
+    if annotation in (int, float):
+        return True
+    return any(_expects_number(a) for a in typing.get_args(annotation)
+               if isinstance(a, type) or typing.get_args(a))
+
+
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    """Every section: unknown keys are errors, and every float is finite (no NaN, no inf)
+    and of magnitude <= MAX_MAGNITUDE; true / false is not a number."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_bool_numbers(cls, v, info):
+        items = v if isinstance(v, list | tuple) else (v,)
+        if any(isinstance(x, bool) for x in items):
+            field = cls.model_fields.get(info.field_name)
+            if field is not None and _expects_number(field.annotation):
+                raise ValueError("give a number, not true / false")
+        return v
+
+    @field_validator("*", mode="after")
+    @classmethod
+    def _numbers(cls, v):
+        return _finite_magnitude(v)
+
+
+#: a pixel offset on the focal plane, px
+_OffsetPx = Annotated[float, Field(ge=-1e5, le=1e5)]
+#: an angle that is not taken modulo 360 silently, deg
+_AngleDeg = Annotated[float, Field(ge=-360.0, le=360.0)]
+
+
+def _epoch_input(v):
+    """A date-time from YAML (a timestamp), a string (ISO 8601) or a date; not a number."""
+    if isinstance(v, bool | int | float):
+        raise ValueError("give a UTC date and time (ISO 8601, e.g. 2026-06-21T10:30:00Z), "
+                         "not a number")
+    if isinstance(v, str):
+        try:
+            return datetime.fromisoformat(v.strip())
+        except ValueError:
+            raise ValueError(f"{short(v, 40)} is not an ISO 8601 date and time (e.g. "
+                             "2026-06-21T10:30:00Z)") from None
+    if isinstance(v, date) and not isinstance(v, datetime):
+        return datetime(v.year, v.month, v.day)
+    return v
+
+
+def _epoch_utc(v: datetime) -> datetime:
+    """Naive UTC: an offset (Z, +02:00) is applied; no offset means UTC. Within the range
+    imcsim can propagate (EPOCH_MIN .. EPOCH_MAX)."""
+    if v.tzinfo is not None and v.utcoffset() is not None:
+        naive = v.replace(tzinfo=None)
+        if not EPOCH_MIN <= naive <= EPOCH_MAX:  # before converting (no overflow near 1 / 9999)
+            raise ValueError(_EPOCH_RANGE)
+        v = v.astimezone(timezone.utc).replace(tzinfo=None)
+    v = v.replace(tzinfo=None)
+    if not EPOCH_MIN <= v <= EPOCH_MAX:
+        raise ValueError(_EPOCH_RANGE)
+    return v
+
+
+_EPOCH_RANGE = (f"must lie between {EPOCH_MIN:%Y-%m-%d} and {EPOCH_MAX:%Y-%m-%d} (UTC), the "
+                "range imcsim's orbit and sun models can propagate")
 
 
 class OrbitConfig(_Model):
@@ -43,18 +126,30 @@ class OrbitConfig(_Model):
     inclination_deg: float = Field(98.1, ge=0.0, le=180.0,
                                    description="circular: inclination, deg")
     epoch_utc: datetime = Field(datetime(2026, 6, 21, 10, 30),
-                                description="UTC time of t = 0 (ISO 8601)")
+                                description="UTC time of t = 0 (ISO 8601: 2026-06-21T10:30:00Z,"
+                                " an offset such as +02:00, or none: UTC); from "
+                                f"{EPOCH_MIN:%Y-%m-%d} to {EPOCH_MAX:%Y-%m-%d}")
     pass_direction: Literal["descending", "ascending"] = Field(
         "descending", description="circular / sun_synchronous: which pass crosses the scene")
     j2: bool = Field(True, description="apply the J2 secular drift (node, perigee, anomaly)")
     semi_major_axis_m: float | None = Field(None, gt=6_478_137.0,
                                             description="elements: semi-major axis, m")
     eccentricity: float = Field(0.0, ge=0.0, lt=1.0, description="elements: eccentricity")
-    raan_deg: float = Field(0.0, description="elements: right ascension of the node, deg")
-    arg_perigee_deg: float = Field(0.0, description="elements: argument of perigee, deg")
-    mean_anomaly_deg: float = Field(0.0, description="elements: mean anomaly at epoch, deg")
-    tle_line1: str | None = Field(None, description="tle: line 1")
-    tle_line2: str | None = Field(None, description="tle: line 2")
+    raan_deg: _AngleDeg = Field(0.0, description="elements: right ascension of the node, deg")
+    arg_perigee_deg: _AngleDeg = Field(0.0, description="elements: argument of perigee, deg")
+    mean_anomaly_deg: _AngleDeg = Field(0.0, description="elements: mean anomaly at epoch, deg")
+    tle_line1: str | None = Field(None, max_length=80, description="tle: line 1")
+    tle_line2: str | None = Field(None, max_length=80, description="tle: line 2")
+
+    @field_validator("epoch_utc", mode="before")
+    @classmethod
+    def _epoch_in(cls, v):
+        return _epoch_input(v)
+
+    @field_validator("epoch_utc", mode="after")
+    @classmethod
+    def _epoch(cls, v: datetime) -> datetime:
+        return _epoch_utc(v)
 
     @model_validator(mode="after")
     def _kind_fields(self) -> OrbitConfig:
@@ -81,7 +176,7 @@ class SinusoidConfig(_Model):
     amplitude_urad: float | None = Field(None, ge=0.0, description="amplitude, urad")
     amplitude_px: float | None = Field(None, ge=0.0,
                                        description="amplitude in pixels (IFOVs) of the camera")
-    phase_deg: float = Field(0.0, description="phase at t = 0, deg")
+    phase_deg: _AngleDeg = Field(0.0, description="phase at t = 0, deg")
 
     @model_validator(mode="after")
     def _one_amplitude(self) -> SinusoidConfig:
@@ -196,13 +291,26 @@ class CloudsConfig(_Model):
 
 
 class GeoTiffConfig(_Model):
-    """User terrain: a north-up GeoTIFF orthophoto and an optional GeoTIFF DEM (same CRS)."""
+    """User terrain: a north-up GeoTIFF orthophoto and an optional GeoTIFF DEM, each in any
+    CRS with an EPSG code or WKT (read by rasterio, placed by pyproj; see scene.geotiff)."""
 
     ortho: Path = Field(description="orthophoto GeoTIFF (path relative to the scenario file)")
     dem: Path | None = Field(None, description="DEM GeoTIFF in m covering the orthophoto "
                              "(none: flat)")
     albedo_scale: float | None = Field(None, gt=0.0, description="albedo per pixel value "
                                        "(default: 1 / dtype max for integers, 1 for floats)")
+
+    @field_validator("ortho", "dem", mode="after")
+    @classmethod
+    def _usable_path(cls, v: Path | None) -> Path | None:
+        if v is None:
+            return v
+        text = str(v)
+        if "\x00" in text or not text.strip() or text == ".":
+            raise ValueError("give the path of a GeoTIFF file")
+        if len(text) > 4096:
+            raise ValueError(f"path of {len(text)} characters; the system takes at most 4096")
+        return v
 
 
 SCENE_KINDS = ("procedural", "urban", "rural", "mountain", "waves", "calm_water", "geotiff")
@@ -217,9 +325,9 @@ class SceneConfig(_Model):
         "paper's classes (urban, rural, mountain with snow and clouds, waves, calm_water), "
         "or geotiff (user data)")
     center_lat_deg: float = Field(35.0, ge=-89.0, le=89.0, description="scene centre lat, "
-                                  "deg (geotiff in UTM or lat/lon: the file's centre instead)")
+                                  "deg (geotiff: the file's centre instead)")
     center_lon_deg: float = Field(10.0, ge=-180.0, le=360.0, description="scene centre lon, "
-                                  "deg (geotiff in UTM or lat/lon: the file's centre instead)")
+                                  "deg (geotiff: the file's centre instead)")
     size_m: float = Field(512.0, gt=0.0, description="tile side (square), m; geotiff: the "
                           "image's extent")
     texel_m: float = Field(0.4, gt=0.0, description="albedo texel size, m; geotiff: its pixel")
@@ -229,7 +337,7 @@ class SceneConfig(_Model):
                                        "buildings, rural 8, mountain 4 % of size_m, water 0)")
     sun_elevation_deg: float | None = Field(None, gt=0.0, le=90.0, description="sun elevation, "
                                             "deg (none: from orbit.epoch_utc at the centre)")
-    sun_azimuth_deg: float | None = Field(None, description="sun azimuth from north to east, "
+    sun_azimuth_deg: _AngleDeg | None = Field(None, description="sun azimuth from north to east, "
                                           "deg (none: from orbit.epoch_utc at the centre)")
     clouds: CloudsConfig | None = Field(None, description="cloud layer (mountain: cover 0.2 "
                                         "by default; set cover 0 to remove)")
@@ -241,6 +349,10 @@ class SceneConfig(_Model):
         if (self.sun_elevation_deg is None) != (self.sun_azimuth_deg is None):
             raise ValueError("give both sun_elevation_deg and sun_azimuth_deg, or neither "
                              "(the sun then follows orbit.epoch_utc)")
+        c = self.clouds
+        if c is not None and c.cell_m > 1.5 * c.base_height_m:
+            raise ValueError("clouds.cell_m exceeds 1.5 x clouds.base_height_m: the cloud layer "
+                             "would be less than 2 cells wide; lower clouds.cell_m")
         if (self.kind == "geotiff") != (self.geotiff is not None):
             raise ValueError("kind 'geotiff' needs the geotiff section (ortho, dem), and the "
                              "geotiff section needs kind 'geotiff'")
@@ -260,7 +372,7 @@ class TrackerSensorConfig(_Model):
 
     rows: int = Field(256, ge=16, le=4096, description="sensor rows, px")
     cols: int = Field(256, ge=16, le=4096, description="sensor columns, px")
-    center_offset_px: tuple[float, float] = Field(
+    center_offset_px: tuple[_OffsetPx, _OffsetPx] = Field(
         (0.0, 0.0), description="sensor centre relative to the principal point, (row, col) px")
     frame_rate_hz: float = Field(100.0, gt=0.0, le=100_000.0, description="frame rate, Hz")
     exposure_s: float | None = Field(None, gt=0.0,
@@ -310,7 +422,7 @@ class MainImagerConfig(_Model):
     """The main imager whose residual blur the metrics report."""
 
     kind: Literal["frame", "tdi"] = Field("frame", description="frame camera or TDI pushbroom")
-    center_offset_px: tuple[float, float] = Field(
+    center_offset_px: tuple[_OffsetPx, _OffsetPx] = Field(
         (0.0, 0.0), description="imager centre relative to the principal point, (row, col) px")
     exposure_s: float = Field(0.1, gt=0.0, description="frame: exposure, s")
     stages: int = Field(32, ge=1, le=256, description="tdi: number of TDI stages")
@@ -323,18 +435,33 @@ class MainImagerConfig(_Model):
                            "the imager's exposures from start_s on)")
 
 
+#: the tracker's widest field of view, rad (its corner rays must still meet the ground)
+MAX_TRACKER_FOV_RAD = 0.5
+
+
 class CameraConfig(_Model):
-    focal_length_m: float = Field(10.0, gt=0.0, description="focal length, m")
-    pixel_pitch_m: float = Field(12e-6, gt=0.0, lt=1e-3, description="pixel pitch, m")
+    focal_length_m: float = Field(10.0, ge=1e-3, le=1e3, description="focal length, m")
+    pixel_pitch_m: float = Field(12e-6, ge=1e-7, lt=1e-3, description="pixel pitch, m")
     optics: OpticsConfig = OpticsConfig()
     radiometry: RadiometryConfig = RadiometryConfig()
     tracker: TrackerSensorConfig = TrackerSensorConfig()
     main_imager: MainImagerConfig = MainImagerConfig()
 
+    @model_validator(mode="after")
+    def _field_of_view(self) -> CameraConfig:
+        t = self.tracker
+        fov = max(t.rows, t.cols) * self.pixel_pitch_m / self.focal_length_m
+        if fov > MAX_TRACKER_FOV_RAD:
+            raise ValueError(f"the tracker sees {fov:.3g} rad across (max(tracker.rows, cols) "
+                             "x pixel_pitch_m / focal_length_m); at most "
+                             f"{MAX_TRACKER_FOV_RAD} rad: raise focal_length_m or lower "
+                             "pixel_pitch_m")
+        return self
+
 
 class SlmConfig(_Model):
-    rows: int = Field(description="pixels down")
-    cols: int = Field(description="pixels across")
+    rows: int = Field(ge=1, le=8192, description="pixels down")
+    cols: int = Field(ge=1, le=8192, description="pixels across")
     pitch_m: float = Field(gt=0.0, lt=1e-3, description="pixel pitch, m")
     bits: int = Field(8, ge=1, le=16, description="drive levels 2^bits")
     fill_factor: float = Field(0.6, gt=0.0, le=1.0, description="aperture area / pixel area")
@@ -342,8 +469,8 @@ class SlmConfig(_Model):
 
 
 class OpticalSensorConfig(_Model):
-    rows: int = Field(description="pixels down")
-    cols: int = Field(description="pixels across")
+    rows: int = Field(ge=1, le=8192, description="pixels down")
+    cols: int = Field(ge=1, le=8192, description="pixels across")
     pitch_m: float = Field(gt=0.0, lt=1e-3, description="pixel pitch, m")
     bits: int = Field(8, ge=1, le=16, description="ADC bits")
     full_well_e: float = Field(20000.0, gt=0.0, description="full well, electrons")
@@ -475,6 +602,60 @@ def make_block(role: str, kind: str, params: dict, wired: dict | None = None):
     return TypeAdapter(block_class(role, kind)).validate_python({**params, **(wired or {})})
 
 
+def _bad_number(value, path: str = "") -> tuple[str, object] | None:
+    """(path, value) of the first NaN, inf or too-large float inside a parameter value."""
+    if isinstance(value, float) and not abs(value) <= MAX_MAGNITUDE:
+        return path, value
+    if isinstance(value, list | tuple):
+        items = enumerate(value)
+    elif isinstance(value, dict):
+        items = value.items()
+    else:
+        return None
+    for k, v in items:
+        bad = _bad_number(v, f"{path}.{k}")
+        if bad is not None:
+            return bad
+    return None
+
+
+def _nested_problem(hint, value, path: str) -> tuple[str, str] | None:
+    """(dotted path, message) of the first key of ``value`` that a nested dataclass of
+    ``hint`` (itself, a list / tuple of it, optional) does not have, or of a true / false
+    given for one of its numbers; None when all is well."""
+    if isinstance(value, dict):
+        cls = next((a for a in (hint, *typing.get_args(hint)) if dataclasses.is_dataclass(a)),
+                   None)
+        if cls is None:
+            return None
+        names = {f.name for f in dataclasses.fields(cls) if f.init}
+        try:
+            hints = typing.get_type_hints(cls)
+        except Exception:  # noqa: BLE001 (an unresolvable hint: check the keys only)
+            hints = {}
+        for k, v in value.items():
+            if k not in names:
+                return (f"{path}.{short(str(k), 40)}",
+                        "unknown parameter (check the spelling; see docs/scenario.md)")
+            if isinstance(v, bool) and _expects_number(hints.get(k)):
+                return f"{path}.{k}", "give a number, not true / false"
+            bad = _nested_problem(hints.get(k), v, f"{path}.{k}")
+            if bad is not None:
+                return bad
+        return None
+    if isinstance(value, list | tuple):
+        args = [a for a in typing.get_args(hint) if a is not Ellipsis]
+        inner = next((a for a in args if dataclasses.is_dataclass(a)), None)
+        if inner is None:  # Optional[tuple[Line, ...]]: one level down
+            inner = next((b for a in args for b in typing.get_args(a)
+                          if dataclasses.is_dataclass(b)), None)
+        for i, v in enumerate(value):
+            bad = _nested_problem(inner, v, f"{path}.{i}")
+            if bad is not None:
+                return bad
+    return None
+
+
 def check_params(role: str, kind: str, params: dict) -> None:
     """Validate a block's parameters against its class (pydantic on the dataclass); a
     ValueError '@field@ message' names the offending parameter."""
@@ -489,14 +670,31 @@ def check_params(role: str, kind: str, params: dict) -> None:
                          f"{', '.join(kinds(role))}") from None
     wired = getattr(cls, "WIRED", ())
     names = {f.name for f in dataclasses.fields(cls) if f.init}
-    for key in params:
+    try:
+        hints = typing.get_type_hints(cls)
+    except Exception:  # noqa: BLE001 (an unresolvable hint: no bool check for that class)
+        hints = {}
+    for key, value in params.items():
         if key in wired:
             raise ValueError(f"@{key}@ is set by imcsim from the rest of the scenario; "
                              "leave it out")
         if key not in names:
             allowed = ", ".join(sorted(names - set(wired)))
-            raise ValueError(f"@{key}@ unknown parameter of {role} kind {kind!r} "
+            raise ValueError(f"@{short(key, 40)}@ unknown parameter of {role} kind {kind!r} "
                              f"(allowed: {allowed})")
+        if _expects_number(hints.get(key)):
+            items = value if isinstance(value, list | tuple) else (value,)
+            at = next((i for i, x in enumerate(items) if isinstance(x, bool)), None)
+            if at is not None:
+                where = f"{key}.{at}" if isinstance(value, list | tuple) else key
+                raise ValueError(f"@{where}@ give a number, not true / false")
+        nested = _nested_problem(hints.get(key), value, key)
+        if nested is not None:
+            raise ValueError(f"@{nested[0]}@ {nested[1]}")
+        bad = _bad_number(value)
+        if bad is not None:
+            raise ValueError(f"@{key}{bad[0]}@ must be a finite number of magnitude <= "
+                             f"{MAX_MAGNITUDE:g} (got {short(bad[1])})")
     try:
         TypeAdapter(cls).validate_python(dict(params))
     except ValidationError as e:
@@ -636,8 +834,8 @@ class MetricsConfig(_Model):
 
 
 class Scenario(_Model):
-    name: str = Field("scenario", min_length=1, description="run name")
-    seed: int = Field(0, ge=0, description="master seed of every random draw")
+    name: str = Field("scenario", min_length=1, max_length=200, description="run name")
+    seed: int = Field(0, ge=0, lt=2**64, description="master seed of every random draw")
     duration_s: float = Field(1.0, gt=0.0, le=600.0, description="simulated time, s")
     orbit: OrbitConfig = OrbitConfig()
     attitude: AttitudeConfig = AttitudeConfig()
@@ -685,10 +883,8 @@ class Scenario(_Model):
 
     @property
     def epoch(self) -> np.datetime64:
-        e = self.orbit.epoch_utc
-        if e.tzinfo is not None:
-            e = e.replace(tzinfo=None) - (e.utcoffset() or 0)
-        return np.datetime64(e, "ns")
+        """orbit.epoch_utc as numpy datetime64[ns] (UTC); never wraps (range checked)."""
+        return np.datetime64(_epoch_utc(self.orbit.epoch_utc), "ns")
 
     def digest(self) -> str:
         """Stable hash of the full (defaults filled) scenario and imcsim version, for resuming."""
@@ -701,23 +897,56 @@ class Scenario(_Model):
         return hashlib.sha256((ver + self.model_dump_json()).encode()).hexdigest()[:16]
 
 
-def _format_validation_error(err: ValidationError, source: str) -> str:
+#: fields the schema moves from an older spelling: (where the schema checks it, where an
+#: older file wrote it)
+_LEGACY_PATHS = ((("compensation", "controller", "gain"), ("compensation", "gain")),
+                 (("compensation", "transport", "latency_frames"),
+                  ("compensation", "latency_frames")))
+
+
+def _has(data, path) -> bool:
+    node = data
+    for key in path:
+        if not isinstance(node, dict) or key not in node:
+            return False
+        node = node[key]
+    return True
+
+
+def user_path(loc: tuple, data: object) -> tuple:
+    """The location of a validation error as the user wrote it: older spellings
+    (compensation.gain) and the list form of attitude.jitter keep their own path."""
+    loc = tuple(loc)
+    for schema, written in _LEGACY_PATHS:
+        if loc[:len(schema)] == schema and not _has(data, schema) and _has(data, written):
+            return written + loc[len(schema):]
+    if (loc[:3] == ("attitude", "jitter", "sinusoids") and isinstance(data, dict)
+            and isinstance(data.get("attitude"), dict)
+            and isinstance(data["attitude"].get("jitter"), list)):
+        return ("attitude", "jitter") + loc[3:]
+    return loc
+
+
+def _format_validation_error(err: ValidationError, source: str, data: object = None) -> str:
     errors = err.errors()
     first = errors[0]
-    loc = ".".join(str(p) for p in first["loc"]) or "(top level)"
+    loc = tuple(first["loc"])
     msg = first["msg"].removeprefix("Value error, ")
     if msg.startswith("@") and "@" in msg[1:]:  # a block parameter names its own field
         name, msg = msg[1:].split("@", 1)
-        loc, msg = f"{loc}.{name}", msg.strip()
+        loc, msg = loc + tuple(name.split(".")), msg.strip()
+    loc = ".".join(str(p) for p in user_path(loc, data)) or "(top level)"
     if first["type"] == "extra_forbidden":
         msg = "unknown field (check the spelling; see docs/scenario.md)"
     got = ""
     if first["type"] not in ("missing", "extra_forbidden") and "input" in first:
         val = first["input"]
-        if not isinstance(val, dict | list):
-            got = f" (got {val!r})"
+        if isinstance(val, date):
+            got = f" (got {val.isoformat()})"
+        elif not isinstance(val, dict | list):
+            got = f" (got {short(val)})"
     more = f" [and {len(errors) - 1} more]" if len(errors) > 1 else ""
-    return f"{source}: {loc}: {msg}{got}{more}"
+    return f"{source}: {short(loc, 120)}: {short(msg, 300)}{got}{more}"
 
 
 def parse_scenario(data: object, source: str = "scenario") -> Scenario:
@@ -728,28 +957,23 @@ def parse_scenario(data: object, source: str = "scenario") -> Scenario:
     try:
         return Scenario.model_validate(data)
     except ValidationError as e:
-        raise ScenarioError(_format_validation_error(e, source)) from None
+        raise ScenarioError(_format_validation_error(e, source, data)) from None
+    except RecursionError:
+        raise ScenarioError(f"{source}: nested deeper than the schema") from None
 
 
 def load_scenario(path: str | Path) -> Scenario:
-    """Read and validate a scenario YAML file; every problem becomes a one-line ScenarioError."""
+    """Read and validate a scenario YAML file; every problem becomes a one-line ScenarioError
+    (strict YAML: see imc.yamlload)."""
     p = Path(path)
+    name = short(str(p), 200)
     try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ScenarioError(f"{p}: file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise ScenarioError(f"{p}: cannot read the file ({e.__class__.__name__}: {e})") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        problem = getattr(e, "problem", None) or str(e).splitlines()[0]
-        raise ScenarioError(f"{p}: YAML syntax error{where}: {problem}") from None
+        data = load_yaml(read_text(p))
+    except YamlInputError as e:
+        raise ScenarioError(f"{name}: {e}") from None
     if data is None:
-        raise ScenarioError(f"{p}: the file is empty")
-    sc = parse_scenario(data, str(p))
+        raise ScenarioError(f"{name}: the file is empty")
+    sc = parse_scenario(data, name)
     g = sc.scene.geotiff
     if g is not None:  # files next to the scenario, wherever it is run from
         g = g.model_copy(update={

@@ -1,16 +1,24 @@
-"""User terrain from GeoTIFFs: an orthophoto (albedo) and an optional DEM. Pure numpy.
+"""User terrain from GeoTIFFs: an orthophoto (albedo) and an optional DEM, in any CRS.
 
-The orthophoto's georeferencing (ModelPixelScale + ModelTiepoint, north-up) fixes the tile:
-its pixel size is the texel size, its centre the ENU origin. WGS84 / UTM files (EPSG
-326zz north, 327zz south) are placed at their own centre (the inverse transverse Mercator,
-Krueger's series) and their map metres become ground metres (the grid's scale factor,
-0.9996-1.0010, measured with GeographicLib geodesics); the grid's convergence (up to ~2 deg
-at a zone edge at mid latitudes) is not applied: the tile's grid north is taken as north.
-Other projected CRSs (metres) are used as they are and placed at the scenario's
-``scene.center_lat_deg/lon_deg``. Geographic CRSs (degrees) are converted to metres at the
-tile centre (WGS84 radii of curvature), and the centre comes from the file. The DEM (any
-pixel size, same CRS) is sampled bilinearly onto the tile's node grid; it must cover the
-orthophoto and have no holes there.
+Files are read with rasterio (GDAL): tiled or striped, compressed, any real dtype, several
+bands (averaged; an alpha band and nodata become holes), internal masks, overviews (a
+decimated read for ``imc validate``). They are placed with pyproj: any CRS with an EPSG
+code or a WKT definition (projected or geographic, any datum PROJ can relate to WGS84).
+
+Placement: the tile's centre is the orthophoto's centre (pyproj: map coordinates to WGS84
+latitude and longitude), the origin of imcsim's local ENU frame (orbit.frames.LocalFrame).
+Every ENU point maps exactly to the file: ENU -> ECEF -> WGS84 (orbit.frames) -> the file's
+CRS (pyproj) -> pixel (the file's affine transform). So the grid convergence (the angle
+between the file's grid north and true north, up to a few degrees at a UTM zone's edge),
+the grid's scale factor (UTM 0.9996-1.001; Web Mercator 1 / cos(lat)) and pixels that are
+not square on the ground (a lat/lon grid) are applied. When the simple placement (rows
+along north, one texel size) is within 0.01 px of the exact one over the whole image the
+pixels are used as they are; otherwise the image is resampled (bilinear) onto a north-up
+ENU grid of square texels with the pixel's ground area, inside the image's footprint. The
+DEM (any CRS, any pixel size) is sampled bilinearly at the tile's DEM nodes the same way; it
+must cover the orthophoto and have no holes there. The tile is a plane tangent at the centre
+(Earth curvature, 8 cm at 1 km, is not modelled; neither are vertical datums: DEM values
+are heights in m).
 
 Every problem raises :class:`GeoTiffError` with a one-line message that names the file and
 the fix.
@@ -18,167 +26,253 @@ the fix.
 
 from __future__ import annotations
 
+import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from geographiclib.geodesic import Geodesic
 from scipy import ndimage
 
+from orbit.frames import LocalFrame, ecef_to_geodetic, geodetic_to_ecef
 from scene.terrain import Terrain
 
-_WGS84_A = 6378137.0
-_WGS84_E2 = 6.69437999014e-3
-_WGS84_F = 1.0 / 298.257223563
-_UTM_K0 = 0.9996
-
-
-def utm_zone(epsg: int | None) -> tuple[int, bool] | None:
-    """(zone, southern) of a WGS84 / UTM EPSG code (32601-32660, 32701-32760), else None."""
-    if epsg is not None and (32601 <= epsg <= 32660 or 32701 <= epsg <= 32760):
-        return epsg % 100, epsg >= 32701
-    return None
-
-
-def utm_to_geodetic(zone: int, southern: bool, easting_m, northing_m):
-    """Latitude and longitude (deg) of UTM coordinates (m), WGS84.
-
-    Krueger's series to third order in n (accurate to a few mm within a zone), as given by
-    Karney, "Transverse Mercator with an accuracy of a few nanometers", J. Geod. 85 (2011).
-    """
-    n = _WGS84_F / (2.0 - _WGS84_F)
-    big_a = _WGS84_A / (1.0 + n) * (1.0 + n**2 / 4.0 + n**4 / 64.0)
-    beta = (n / 2.0 - 2.0 * n**2 / 3.0 + 37.0 * n**3 / 96.0,
-            n**2 / 48.0 + n**3 / 15.0,
-            17.0 * n**3 / 480.0)
-    delta = (2.0 * n - 2.0 * n**2 / 3.0 - 2.0 * n**3,
-             7.0 * n**2 / 3.0 - 8.0 * n**3 / 5.0,
-             56.0 * n**3 / 15.0)
-    xi = (np.asarray(northing_m, np.float64) - (1e7 if southern else 0.0)) / (_UTM_K0 * big_a)
-    eta = (np.asarray(easting_m, np.float64) - 5e5) / (_UTM_K0 * big_a)
-    xi1, eta1 = xi.copy(), eta.copy()
-    for j, b in enumerate(beta, start=1):
-        xi1 = xi1 - b * np.sin(2 * j * xi) * np.cosh(2 * j * eta)
-        eta1 = eta1 - b * np.cos(2 * j * xi) * np.sinh(2 * j * eta)
-    chi = np.arcsin(np.sin(xi1) / np.cosh(eta1))
-    lat = chi + sum(d * np.sin(2 * j * chi) for j, d in enumerate(delta, start=1))
-    lon0 = 6.0 * zone - 183.0
-    lon = lon0 + np.degrees(np.arctan2(np.sinh(eta1), np.cos(xi1)))
-    return np.degrees(lat), lon
-
-
-def utm_ground_scale(zone: int, southern: bool, easting_m: float, northing_m: float,
-                     step_m: float = 1000.0) -> float:
-    """Ground metres per UTM map metre at a point (1 / the grid scale factor), from the
-    geodesic lengths of map steps east and north."""
-    lat0, lon0 = utm_to_geodetic(zone, southern, easting_m, northing_m)
-    out = []
-    for de, dn in ((step_m, 0.0), (0.0, step_m)):
-        lat1, lon1 = utm_to_geodetic(zone, southern, easting_m + de, northing_m + dn)
-        out.append(Geodesic.WGS84.Inverse(float(lat0), float(lon0), float(lat1),
-                                          float(lon1))["s12"] / step_m)
-    return float(np.mean(out))
+#: largest deviation (px) of the simple placement for which the pixels are used as they are
+EXACT_TOLERANCE_PX = 0.01
+#: ENU -> pixel is computed exactly every this many texels and interpolated in between
+_COARSE = 32
 
 
 class GeoTiffError(ValueError):
     """A GeoTIFF that cannot be used as imcsim terrain."""
 
 
+def _name(path) -> str:
+    text = str(path)
+    return text if len(text) <= 160 else f"{text[:70]} ... {text[-70:]}"
+
+
 @dataclass(frozen=True)
 class GeoRaster:
-    """One band (H, W) float64 with a north-up affine georeference.
+    """One band (H, W) float64 (NaN: nodata) with its georeference.
 
-    ``x0, y0``: map coordinates of the outer upper-left corner of pixel (0, 0); ``dx, dy``:
-    pixel size (> 0; rows run toward -y). ``geographic``: coordinates in degrees (lon, lat).
-    ``dtype``: the file's pixel type (before conversion to float64).
+    ``transform``: the affine (rasterio/affine) from (col, row) of pixel edges to map x, y;
+    ``crs``: a pyproj CRS; ``dtype``: the file's pixel type; ``decimation``: 1, or the
+    factor of a reduced read (overviews).
     """
 
     data: np.ndarray
-    x0: float
-    y0: float
-    dx: float
-    dy: float
-    geographic: bool
-    crs: int | None
+    transform: object
+    crs: object
     path: str
     dtype: str
+    decimation: int = 1
 
     @property
-    def extent(self) -> tuple[float, float, float, float]:
-        """(x_min, x_max, y_min, y_max) of the outer pixel edges, map units."""
-        h, w = self.data.shape
-        return self.x0, self.x0 + w * self.dx, self.y0 - h * self.dy, self.y0
+    def shape(self) -> tuple[int, int]:
+        return self.data.shape
+
+    def _matrix(self) -> tuple[np.ndarray, np.ndarray]:
+        a, b, c, d, e, f = tuple(self.transform)[:6]
+        return np.array([[a, b], [d, e]], np.float64), np.array([c, f], np.float64)
 
     def pixel_of(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Fractional (row, col) of map points, pixel centres at integers."""
-        return (self.y0 - y) / self.dy - 0.5, (x - self.x0) / self.dx - 0.5
+        """Fractional (row, col) array indices of map points, pixel centres at integers."""
+        m, t = self._matrix()
+        inv = np.linalg.inv(m)
+        dx, dy = np.asarray(x, np.float64) - t[0], np.asarray(y, np.float64) - t[1]
+        col = inv[0, 0] * dx + inv[0, 1] * dy
+        row = inv[1, 0] * dx + inv[1, 1] * dy
+        return row - 0.5, col - 0.5
+
+    def map_of(self, row: np.ndarray, col: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Map (x, y) of fractional array indices (pixel centres at integers)."""
+        m, t = self._matrix()
+        c, r = np.asarray(col, np.float64) + 0.5, np.asarray(row, np.float64) + 0.5
+        return m[0, 0] * c + m[0, 1] * r + t[0], m[1, 0] * c + m[1, 1] * r + t[1]
 
 
-def _geokeys(meta: dict) -> tuple[bool, int | None]:
-    model = meta.get("GTModelTypeGeoKey")
-    model = getattr(model, "value", model)
-    proj = meta.get("ProjectedCSTypeGeoKey")
-    geog = meta.get("GeographicTypeGeoKey")
-    proj = getattr(proj, "value", proj)
-    geog = getattr(geog, "value", geog)
-    geographic = model == 2 or (model is None and proj is None and geog is not None)
-    crs = geog if geographic else proj
-    return geographic, (int(crs) if crs is not None else None)
-
-
-def read_geotiff(path: str | Path, what: str = "GeoTIFF") -> GeoRaster:
-    """Read the first image of a GeoTIFF: one band (RGB averaged), nodata as NaN."""
-    import tifffile
+def _open(path, what: str):
+    """rasterio dataset of path; GeoTiffError naming it if it cannot be opened."""
+    import rasterio
+    from rasterio.errors import RasterioError
 
     p = Path(path)
-    if not p.is_file():
-        raise GeoTiffError(f"{what} {p}: file not found")
     try:
-        with tifffile.TiffFile(p) as tif:
-            page = tif.pages.first
-            data = page.asarray()
-            meta = tif.geotiff_metadata or {}
-            nodata = page.tags.get("GDAL_NODATA")
-            nodata = nodata.value if nodata is not None else None
-    except Exception as e:  # tifffile raises many types for corrupt files
-        raise GeoTiffError(f"{what} {p}: cannot read it as a TIFF ({e.__class__.__name__}: "
-                           f"{e}); write it with GDAL or tifffile") from None
-    if "ModelTransformation" in meta:
-        m = np.asarray(meta["ModelTransformation"], float).reshape(4, 4)
-        if abs(m[0, 1]) > 0 or abs(m[1, 0]) > 0:
-            raise GeoTiffError(f"{what} {p}: rotated or sheared rasters are not supported; "
-                               "warp it north-up (gdalwarp)")
-        scale, tie = (m[0, 0], -m[1, 1], 0.0), (0.0, 0.0, 0.0, m[0, 3], m[1, 3], 0.0)
-    elif "ModelPixelScale" in meta and "ModelTiepoint" in meta:
-        scale, tie = meta["ModelPixelScale"], meta["ModelTiepoint"]
-    else:
-        raise GeoTiffError(f"{what} {p}: no georeferencing (ModelPixelScale + ModelTiepoint "
-                           "tags); export it as a GeoTIFF")
-    dx, dy = float(scale[0]), float(scale[1])
-    if not (dx > 0 and dy > 0):
-        raise GeoTiffError(f"{what} {p}: pixel scale ({dx}, {dy}) must be positive (north-up)")
-    data = np.asarray(data)
-    file_dtype = str(data.dtype)  # before RGB averaging turns it into float
-    if data.ndim == 3:
-        bands_last = data.shape[-1] <= 4
-        data = data.mean(axis=-1 if bands_last else 0)
-    if data.ndim != 2:
-        raise GeoTiffError(f"{what} {p}: expected a 2-D single-band or RGB image, got shape "
-                           f"{data.shape}")
-    raw = data
-    data = data.astype(np.float64)
-    if nodata is not None:
+        if not p.is_file():
+            raise GeoTiffError(f"{what} {_name(p)}: file not found" if not p.exists() else
+                               f"{what} {_name(p)}: not a file")
+    except (OSError, ValueError) as e:
+        raise GeoTiffError(f"{what} {_name(p)}: cannot use this path "
+                           f"({getattr(e, 'strerror', None) or e})") from None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return rasterio.open(p)
+    except (RasterioError, OSError, ValueError) as e:
+        msg = " ".join(str(e).split())[:160]
+        raise GeoTiffError(f"{what} {_name(p)}: cannot read it as a TIFF ({msg}); write it "
+                           "with GDAL, rasterio or tifffile") from None
+
+
+def _georeference(ds, what: str):
+    """(transform, pyproj CRS) of an open dataset, or GeoTiffError."""
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+
+    name = _name(ds.name)
+    t = ds.transform
+    if ds.crs is None and t.is_identity:
+        raise GeoTiffError(f"{what} {name}: no georeferencing (no CRS, no pixel scale or tie "
+                           "point); export it as a GeoTIFF (gdal_translate -a_srs -a_ullr)")
+    if ds.crs is None:
+        raise GeoTiffError(f"{what} {name}: no CRS; assign one (gdal_edit.py -a_srs EPSG:...)")
+    if not all(math.isfinite(v) for v in tuple(t)[:6]) or abs(t.determinant) == 0.0:
+        raise GeoTiffError(f"{what} {name}: its pixel transform {tuple(t)[:6]} is degenerate; "
+                           "fix its georeferencing")
+    try:
+        crs = CRS.from_user_input(ds.crs.to_wkt())
+    except CRSError as e:
+        raise GeoTiffError(f"{what} {name}: PROJ does not understand its CRS ({e}); "
+                           "reproject it (gdalwarp -t_srs EPSG:4326)") from None
+    return t, crs
+
+
+def raster_shape(path, what: str = "scene.geotiff.ortho") -> tuple[int, int]:
+    """(rows, cols) of a GeoTIFF from its header (nothing read)."""
+    with _open(path, what) as ds:
+        return int(ds.height), int(ds.width)
+
+
+def read_geotiff(path: str | Path, what: str = "GeoTIFF", max_side: int | None = None
+                 ) -> GeoRaster:
+    """One band of a GeoTIFF (bands averaged, alpha and nodata as NaN) and its georeference.
+
+    ``max_side``: read a decimated image (from the overviews where the file has them) with
+    at most this many pixels a side.
+    """
+    from affine import Affine
+    from rasterio.enums import ColorInterp, Resampling
+    from rasterio.errors import RasterioError
+
+    with _open(path, what) as ds:
+        name = _name(ds.name)
+        transform, crs = _georeference(ds, what)
+        dtype = np.dtype(ds.dtypes[0])
+        if dtype.kind not in "uif":
+            raise GeoTiffError(f"{what} {name}: pixel type {dtype} is not a real number; "
+                               "convert it (gdal_translate -ot Float32)")
+        alpha = [i + 1 for i, c in enumerate(ds.colorinterp) if c == ColorInterp.alpha]
+        bands = [b for b in range(1, ds.count + 1) if b not in alpha] or [1]
+        h, w = ds.height, ds.width
+        f = 1
+        if max_side is not None and max(h, w) > max_side:
+            f = int(math.ceil(max(h, w) / max_side))
+        shape = (len(bands), max(1, h // f), max(1, w // f))
         try:
-            data[raw == float(str(nodata).strip())] = np.nan
-        except ValueError:
-            pass
-    i, j = float(tie[0]), float(tie[1])
-    x0, y0 = float(tie[3]) - i * dx, float(tie[4]) + j * dy
-    pixel_is_point = meta.get("GTRasterTypeGeoKey")
-    if getattr(pixel_is_point, "value", pixel_is_point) == 2:  # RasterPixelIsPoint
-        x0, y0 = x0 - dx / 2.0, y0 + dy / 2.0
-    geographic, crs = _geokeys(meta)
-    return GeoRaster(data, x0, y0, dx, dy, geographic, crs, str(p), file_dtype)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                arr = ds.read(bands, out_shape=shape, masked=True,
+                              resampling=Resampling.average if f > 1 else Resampling.nearest)
+                if alpha:
+                    a = ds.read(alpha[0], out_shape=shape[1:], resampling=Resampling.nearest)
+        except (RasterioError, OSError, ValueError, MemoryError) as e:
+            msg = " ".join(str(e).split())[:160]
+            raise GeoTiffError(f"{what} {name}: cannot read its pixels ({msg}); check the "
+                               "file (gdalinfo -checksum)") from None
+        if f > 1:  # the same extent in fewer, larger pixels
+            sx, sy = w / shape[2], h / shape[1]
+            a, b, c, d, e, g = tuple(transform)[:6]
+            transform = Affine(a * sx, b * sy, c, d * sx, e * sy, g)
+    data = np.ma.getdata(arr).astype(np.float64)
+    bad = np.ma.getmaskarray(arr).any(axis=0) | ~np.isfinite(data).all(axis=0)
+    if alpha:
+        bad |= a == 0
+    data = data.mean(axis=0)
+    data[bad] = np.nan
+    return GeoRaster(data, transform, crs, name, str(dtype), f)
+
+
+class Placement:
+    """Where the pixels of a raster lie in the local ENU frame centred at (lat0, lon0)."""
+
+    def __init__(self, raster: GeoRaster, lat0: float, lon0: float, what: str):
+        from pyproj import CRS, Transformer
+
+        self.raster, self.what = raster, what
+        self.frame = LocalFrame(float(lat0), float(lon0), 0.0)
+        wgs84 = CRS.from_epsg(4326)
+        self._to_geo = Transformer.from_crs(raster.crs, wgs84, always_xy=True)
+        self._from_geo = Transformer.from_crs(wgs84, raster.crs, always_xy=True)
+
+    def lonlat_of_pixel(self, row, col) -> tuple[np.ndarray, np.ndarray]:
+        """WGS84 (lon, lat) deg of fractional array indices."""
+        x, y = self.raster.map_of(row, col)
+        lon, lat = self._to_geo.transform(x, y, errcheck=False)
+        return np.asarray(lon, np.float64), np.asarray(lat, np.float64)
+
+    def enu_of_pixel(self, row, col) -> tuple[np.ndarray, np.ndarray]:
+        """ENU (east, north) m of fractional array indices (on the ellipsoid)."""
+        lon, lat = self.lonlat_of_pixel(row, col)
+        self._check(lat, lon)
+        enu = self.frame.ecef_to_enu(geodetic_to_ecef(lat, lon, 0.0))
+        return enu[..., 0], enu[..., 1]
+
+    def pixel_of_enu(self, east, north) -> tuple[np.ndarray, np.ndarray]:
+        """Fractional (row, col) array indices of ENU points (on the tangent plane)."""
+        e, n = np.broadcast_arrays(np.asarray(east, np.float64), np.asarray(north, np.float64))
+        ecef = self.frame.enu_to_ecef(np.stack([e, n, np.zeros_like(e)], axis=-1))
+        lat, lon, _ = ecef_to_geodetic(ecef)
+        x, y = self._from_geo.transform(lon, lat, errcheck=False)
+        row, col = self.raster.pixel_of(np.asarray(x), np.asarray(y))
+        if not (np.all(np.isfinite(row)) and np.all(np.isfinite(col))):
+            raise GeoTiffError(f"{self.what} {self.raster.path}: the tile reaches places its "
+                               "CRS cannot represent; use a smaller image or another CRS")
+        return row, col
+
+    def _check(self, lat, lon) -> None:
+        ok = np.isfinite(lat) & np.isfinite(lon) & (np.abs(lat) <= 90.0)
+        if not np.all(ok):
+            raise GeoTiffError(f"{self.what} {self.raster.path}: its pixels do not all lie on "
+                               "the Earth in its CRS (latitude beyond +-90 deg or a point PROJ "
+                               "cannot convert); check its georeferencing")
+
+    def jacobian(self, row: float, col: float) -> np.ndarray:
+        """d(east, north) / d(col, row) at a pixel, m per pixel (2, 2)."""
+        e, n = self.enu_of_pixel(np.array([row, row, row - 0.5, row + 0.5]),
+                                 np.array([col - 0.5, col + 0.5, col, col]))
+        return np.array([[e[1] - e[0], e[3] - e[2]], [n[1] - n[0], n[3] - n[2]]])
+
+    def factors(self) -> dict[str, float]:
+        """Grid convergence (deg, grid north east of true north positive) and scale factor
+        (map units per ground metre, meridional and parallel) at the centre, by pyproj;
+        empty for a geographic CRS."""
+        from pyproj import Proj
+
+        if self.raster.crs.is_geographic:
+            return {}
+        f = Proj(self.raster.crs).get_factors(self.frame.lon_deg, self.frame.lat_deg,
+                                              errcheck=False)
+        return {"convergence_deg": float(f.meridian_convergence),
+                "meridional_scale": float(f.meridional_scale),
+                "parallel_scale": float(f.parallel_scale)}
+
+
+def _centre(raster: GeoRaster, row: float, col: float, what: str) -> tuple[float, float]:
+    """WGS84 (lat, lon) of fractional array indices, checked to be on the Earth."""
+    from pyproj import CRS, Transformer
+
+    x, y = raster.map_of(row, col)
+    tr = Transformer.from_crs(raster.crs, CRS.from_epsg(4326), always_xy=True)
+    lon, lat = tr.transform(float(x), float(y), errcheck=False)
+    if not (math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90.0):
+        raise GeoTiffError(f"{what} {raster.path}: its centre (map {float(x):.6g}, "
+                           f"{float(y):.6g}) is not on the Earth in its CRS "
+                           f"({raster.crs.name}); check its georeferencing")
+    if abs(lat) > 89.0:
+        raise GeoTiffError(f"{what} {raster.path}: its centre is at latitude {lat:.4f} deg; "
+                           "imcsim places scenes within +-89 deg")
+    return float(lat), float(((lon + 180.0) % 360.0) - 180.0)
 
 
 def _holes(data: np.ndarray, row0: int = 0, col0: int = 0) -> str | None:
@@ -189,107 +283,198 @@ def _holes(data: np.ndarray, row0: int = 0, col0: int = 0) -> str | None:
     return f"{int(bad.sum())} NaN / nodata pixels (first at row {r + row0}, col {c + col0})"
 
 
-def terrain_from_geotiff(ortho_path: str | Path, dem_path: str | Path | None,
-                         dem_spacing_m: float, albedo_scale: float | None = None
-                         ) -> tuple[Terrain, tuple[float, float] | None]:
-    """Terrain from an orthophoto and an optional DEM; and (lat, lon) of its centre if known.
+@dataclass(frozen=True)
+class GeoTerrain:
+    """A placed GeoTIFF tile: the terrain, its centre (lat, lon) deg, whether the pixels were
+    resampled, the CRS's factors at the centre (see :meth:`Placement.factors`), and the
+    placement (ENU <-> file pixels)."""
 
-    The orthophoto is cropped (centred) to a whole number of DEM cells of ``dem_spacing_m``
+    terrain: Terrain
+    centre: tuple[float, float]
+    resampled: bool
+    factors: dict
+    placement: Placement
+    row0: float  # array index of the tile's first texel centre (not resampled), else nan
+    col0: float
+
+
+def place_geotiff(ortho_path: str | Path, dem_path: str | Path | None, dem_spacing_m: float,
+                  albedo_scale: float | None = None, max_side: int | None = None
+                  ) -> GeoTerrain:
+    """Terrain from an orthophoto and an optional DEM, placed by pyproj (module docstring).
+
+    The tile is cropped (centred) to a whole number of DEM cells of ``dem_spacing_m``
     (rounded to whole texels). ``albedo_scale`` multiplies the pixel values (default: 1 for
-    float images, 1 / the dtype's maximum for integer images); the result is clipped to [0, 1].
+    float images, 1 / the dtype's maximum for integer images); the result is clipped to
+    [0, 1]. ``max_side``: read the orthophoto decimated to at most this many pixels a side.
     """
-    ortho = read_geotiff(ortho_path, "scene.geotiff.ortho")
-    where = _holes(ortho.data)
-    if where:
-        raise GeoTiffError(f"scene.geotiff.ortho {ortho.path}: {where}; fill them "
-                           "(gdal_fillnodata.py) or crop the image")
-    lat0 = lon0 = None
-    x_c = ortho.x0 + ortho.data.shape[1] * ortho.dx / 2.0
-    y_c = ortho.y0 - ortho.data.shape[0] * ortho.dy / 2.0
-    if ortho.geographic:
-        lon0, lat0 = x_c, y_c
-        s = np.sin(np.deg2rad(lat0))
-        n_rad = _WGS84_A / np.sqrt(1 - _WGS84_E2 * s * s)
-        m_rad = _WGS84_A * (1 - _WGS84_E2) / (1 - _WGS84_E2 * s * s) ** 1.5
-        sx = np.deg2rad(1.0) * n_rad * np.cos(np.deg2rad(lat0))  # metres per degree east
-        sy = np.deg2rad(1.0) * m_rad
-    elif (zone := utm_zone(ortho.crs)) is not None:
-        lat0, lon0 = (float(v) for v in utm_to_geodetic(*zone, x_c, y_c))
-        sx = sy = utm_ground_scale(*zone, x_c, y_c)
-    else:
-        sx = sy = 1.0
-    tx, ty = ortho.dx * sx, ortho.dy * sy
-    if abs(tx - ty) > 0.01 * max(tx, ty):
-        raise GeoTiffError(f"scene.geotiff.ortho {ortho.path}: pixels are {tx:.3f} x {ty:.3f} m;"
-                           " resample to square pixels (gdalwarp -tr)")
-    texel_m = float(np.sqrt(tx * ty))
+    what = "scene.geotiff.ortho"
+    ortho = read_geotiff(ortho_path, what, max_side)
+    h, w = ortho.shape
+    if h < 16 or w < 16:
+        raise GeoTiffError(f"{what} {ortho.path}: {h} x {w} px is too small (16 x 16 at least)")
+    lat0, lon0 = _centre(ortho, (h - 1) / 2.0, (w - 1) / 2.0, what)
+    place = Placement(ortho, lat0, lon0, what)
+    jac = place.jacobian((h - 1) / 2.0, (w - 1) / 2.0)
+    texel_m = float(np.sqrt(abs(np.linalg.det(jac))))
+    if not (math.isfinite(texel_m) and texel_m > 0):
+        raise GeoTiffError(f"{what} {ortho.path}: its pixels have no ground size; check its "
+                           "georeferencing")
     step = max(1, int(round(dem_spacing_m / texel_m)))
-    h, w = ortho.data.shape
-    nh, nw = (h // step) * step, (w // step) * step
-    if nh < 2 * step or nw < 2 * step or nh < 16 or nw < 16:
-        raise GeoTiffError(f"scene.geotiff.ortho {ortho.path}: {h} x {w} px is smaller than 2 "
-                           f"DEM cells of {dem_spacing_m} m; lower scene.dem_spacing_m")
-    r0, c0 = (h - nh) // 2, (w - nw) // 2
-    img = ortho.data[r0:r0 + nh, c0:c0 + nw]
+    # the simple placement: rows along north, columns along east, one texel size
+    rr = np.array([0.0, 0.0, h - 1.0, h - 1.0, (h - 1) / 2.0, 0.0, h - 1.0, (h - 1) / 2.0])
+    cc = np.array([0.0, w - 1.0, 0.0, w - 1.0, 0.0, (w - 1) / 2.0, (w - 1) / 2.0, w - 1.0])
+    e, n = place.enu_of_pixel(rr, cc)
+    dev = np.hypot(e - (cc - (w - 1) / 2.0) * texel_m, n - ((h - 1) / 2.0 - rr) * texel_m)
+    resample = float(dev.max()) / texel_m > EXACT_TOLERANCE_PX
+    if resample:
+        albedo, nh, nw, r0, c0 = _resampled(ortho, place, texel_m, step, dem_spacing_m, what)
+    else:
+        nh, nw = (h // step) * step, (w // step) * step
+        _check_cells(ortho, h, w, nh, nw, step, dem_spacing_m, what)
+        r0, c0 = (h - nh) // 2, (w - nw) // 2
+        albedo = ortho.data[r0:r0 + nh, c0:c0 + nw]
+        if (h - nh) % 2 or (w - nw) % 2:  # the crop's centre is the ENU origin
+            lat0, lon0 = _centre(ortho, r0 + (nh - 1) / 2.0, c0 + (nw - 1) / 2.0, what)
+            place = Placement(ortho, lat0, lon0, what)
+    where = _holes(albedo)
+    if where:
+        raise GeoTiffError(f"{what} {ortho.path}: {where}; fill them (gdal_fillnodata.py) or "
+                           "crop the image")
     if albedo_scale is None:
-        raw_dtype = np.dtype(ortho.dtype)
-        albedo_scale = 1.0 / np.iinfo(raw_dtype).max if raw_dtype.kind in "ui" else 1.0
-    albedo = np.clip(img * albedo_scale, 0.0, 1.0).astype(np.float32)
+        raw = np.dtype(ortho.dtype)
+        albedo_scale = 1.0 / np.iinfo(raw).max if raw.kind in "ui" else 1.0
+    albedo = np.clip(albedo * albedo_scale, 0.0, 1.0).astype(np.float32)
     if albedo.max() <= 0.0:
-        raise GeoTiffError(f"scene.geotiff.ortho {ortho.path}: the image is black after "
-                           "scaling; check scene.geotiff.albedo_scale")
+        raise GeoTiffError(f"{what} {ortho.path}: the image is black after scaling; check "
+                           "scene.geotiff.albedo_scale")
     spacing = step * texel_m
     my, mx = nh // step + 1, nw // step + 1
     if dem_path is None:
-        return (Terrain(albedo, texel_m, np.zeros((my, mx), np.float32), spacing),
-                None if lat0 is None else (lat0, lon0))
-    dem = read_geotiff(dem_path, "scene.geotiff.dem")
-    if dem.geographic != ortho.geographic or (
-            dem.crs is not None and ortho.crs is not None and dem.crs != ortho.crs):
-        raise GeoTiffError(f"scene.geotiff.dem {dem.path}: CRS {dem.crs} differs from the "
-                           f"orthophoto's {ortho.crs}; reproject it (gdalwarp -t_srs)")
-    # node map coordinates: the cropped tile's outer edges are the outer nodes
-    xs = ortho.x0 + (c0 + np.arange(mx) * step) * ortho.dx
-    ys = ortho.y0 - (r0 + np.arange(my) * step) * ortho.dy
-    yy, xx = np.meshgrid(ys, xs, indexing="ij")
-    rr, cc = dem.pixel_of(xx, yy)
-    dh, dw = dem.data.shape
+        dem_m = np.zeros((my, mx), np.float32)
+    else:
+        east = (np.arange(mx) * step - nw / 2.0) * texel_m
+        north = (nh / 2.0 - np.arange(my) * step) * texel_m
+        dem_m = _dem_at(dem_path, place, east, north)
+    terrain = Terrain(albedo, texel_m, dem_m, spacing)
+    return GeoTerrain(terrain, (place.frame.lat_deg, place.frame.lon_deg), resample,
+                      place.factors(), place, float("nan") if resample else float(r0),
+                      float("nan") if resample else float(c0))
+
+
+def _check_cells(ortho, h, w, nh, nw, step, dem_spacing_m, what) -> None:
+    if nh < 2 * step or nw < 2 * step or nh < 16 or nw < 16:
+        raise GeoTiffError(f"{what} {ortho.path}: {h} x {w} px is smaller than 2 DEM cells of "
+                           f"{dem_spacing_m} m; lower scene.dem_spacing_m")
+
+
+def _resampled(ortho: GeoRaster, place: Placement, texel_m: float, step: int,
+               dem_spacing_m: float, what: str):
+    """The orthophoto on a north-up ENU grid of square texels inside its footprint:
+    (albedo (nh, nw), nh, nw, 0, 0)."""
+    h, w = ortho.shape
+    jac = place.jacobian((h - 1) / 2.0, (w - 1) / 2.0)
+    a0, b0 = w * np.hypot(*jac[:, 0]) / 2.0, h * np.hypot(*jac[:, 1]) / 2.0
+
+    def inside(s: float) -> bool:
+        e = np.array([-1.0, 1.0, -1.0, 1.0, 0.0, 0.0, -1.0, 1.0]) * s * a0
+        n = np.array([-1.0, -1.0, 1.0, 1.0, -1.0, 1.0, 0.0, 0.0]) * s * b0
+        r, c = place.pixel_of_enu(e, n)
+        return bool(np.all((r >= 0.5) & (r <= h - 1.5) & (c >= 0.5) & (c <= w - 1.5)))
+
+    lo, hi = 0.0, 1.0
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if inside(mid) else (lo, mid)
+    nh = (int(2.0 * lo * b0 / texel_m) // step) * step
+    nw = (int(2.0 * lo * a0 / texel_m) // step) * step
+    _check_cells(ortho, h, w, nh, nw, step, dem_spacing_m, what)
+    # exact pixel positions on a coarse grid of texel centres, bilinear in between
+    ci = np.unique(np.r_[np.arange(0, nh, _COARSE), nh - 1]).astype(np.float64)
+    cj = np.unique(np.r_[np.arange(0, nw, _COARSE), nw - 1]).astype(np.float64)
+    ee = (cj + 0.5 - nw / 2.0) * texel_m
+    nn = (nh / 2.0 - ci - 0.5) * texel_m
+    rows, cols = place.pixel_of_enu(ee[None, :], nn[:, None])
+    albedo = np.empty((nh, nw), np.float64)
+    jj = np.interp(np.arange(nw), cj, np.arange(len(cj)))
+    for i0 in range(0, nh, 256):
+        ii = np.interp(np.arange(i0, min(nh, i0 + 256)), ci, np.arange(len(ci)))
+        gi, gj = np.meshgrid(ii, jj, indexing="ij")
+        r = ndimage.map_coordinates(rows, [gi, gj], order=1)
+        c = ndimage.map_coordinates(cols, [gi, gj], order=1)
+        albedo[i0:i0 + len(ii)] = ndimage.map_coordinates(ortho.data, [r, c], order=1,
+                                                          mode="nearest", prefilter=False)
+    return albedo, nh, nw, 0, 0
+
+
+def _dem_at(dem_path, place: Placement, east: np.ndarray, north: np.ndarray) -> np.ndarray:
+    """DEM heights (len(north), len(east)) m at ENU nodes, bilinear, any CRS."""
+    what = "scene.geotiff.dem"
+    dem = read_geotiff(dem_path, what)
+    dplace = Placement(dem, place.frame.lat_deg, place.frame.lon_deg, what)
+    rr, cc = dplace.pixel_of_enu(east[None, :], north[:, None])
+    dh, dw = dem.shape
     tol = 0.5 + 1e-6
     if rr.min() < -tol or cc.min() < -tol or rr.max() > dh - 1 + tol or cc.max() > dw - 1 + tol:
-        ex = dem.extent
+        x0, y0 = dem.map_of(np.array([-0.5, dh - 0.5]), np.array([-0.5, dw - 0.5]))
+        xs, ys = dem.map_of(np.array([rr.min(), rr.max()]), np.array([cc.min(), cc.max()]))
         raise GeoTiffError(
-            f"scene.geotiff.dem {dem.path}: its extent x {ex[0]:.6g}..{ex[1]:.6g}, y "
-            f"{ex[2]:.6g}..{ex[3]:.6g} does not cover the orthophoto's x {xs[0]:.6g}.."
-            f"{xs[-1]:.6g}, y {ys[-1]:.6g}..{ys[0]:.6g}; use a DEM that covers it")
+            f"{what} {dem.path}: its extent x {min(x0):.6g}..{max(x0):.6g}, y "
+            f"{min(y0):.6g}..{max(y0):.6g} does not cover the orthophoto's x {min(xs):.6g}.."
+            f"{max(xs):.6g}, y {min(ys):.6g}..{max(ys):.6g} (in the DEM's CRS); use a DEM that "
+            "covers it")
     rr, cc = np.clip(rr, 0, dh - 1), np.clip(cc, 0, dw - 1)
     r_lo, r_hi = int(np.floor(rr.min())), int(np.ceil(rr.max())) + 1
     c_lo, c_hi = int(np.floor(cc.min())), int(np.ceil(cc.max())) + 1
     where = _holes(dem.data[r_lo:r_hi, c_lo:c_hi], r_lo, c_lo)
     if where:
-        raise GeoTiffError(f"scene.geotiff.dem {dem.path}: {where} under the orthophoto; fill "
-                           "them (gdal_fillnodata.py)")
+        raise GeoTiffError(f"{what} {dem.path}: {where} under the orthophoto; fill them "
+                           "(gdal_fillnodata.py)")
     z = ndimage.map_coordinates(dem.data, [rr, cc], order=1, mode="nearest")
-    return (Terrain(albedo, texel_m, z.astype(np.float32), spacing),
-            None if lat0 is None else (lat0, lon0))
+    return z.astype(np.float32)
+
+
+def terrain_from_geotiff(ortho_path: str | Path, dem_path: str | Path | None,
+                         dem_spacing_m: float, albedo_scale: float | None = None,
+                         max_side: int | None = None
+                         ) -> tuple[Terrain, tuple[float, float]]:
+    """Terrain and its centre (lat, lon) deg from an orthophoto and an optional DEM (see
+    :func:`place_geotiff`)."""
+    g = place_geotiff(ortho_path, dem_path, dem_spacing_m, albedo_scale, max_side)
+    return g.terrain, g.centre
 
 
 def write_geotiff(path: str | Path, data: np.ndarray, x0: float, y0: float, dx: float,
-                  dy: float, crs: int = 32632, geographic: bool = False,
-                  nodata: float | None = None) -> None:
-    """Write a north-up single-band GeoTIFF (for examples and tests; GDAL reads it).
+                  dy: float, crs: int | str = 32632, geographic: bool = False,
+                  nodata: float | None = None, tiled: bool = False,
+                  compress: str | None = None, overviews: tuple[int, ...] = ()) -> None:
+    """Write a north-up GeoTIFF with rasterio (for examples and tests).
 
-    ``x0, y0``: upper-left outer corner; ``dx, dy`` > 0 pixel size in map units; ``crs`` an
-    EPSG code (projected, or geographic with ``geographic=True``).
+    ``data``: (H, W) or (bands, H, W); ``x0, y0``: upper-left outer corner; ``dx, dy`` > 0
+    pixel size in map units; ``crs``: an EPSG code or a WKT / PROJ string (``geographic`` is
+    kept for older callers: the CRS says it); ``tiled``, ``compress`` ('deflate', 'lzw', ...)
+    and ``overviews`` (decimation factors) as GDAL writes them.
     """
-    import tifffile
+    import rasterio
+    from affine import Affine
 
-    model, key = (2, 2048) if geographic else (1, 3072)
-    keys = [1, 1, 0, 3, 1024, 0, 1, model, 1025, 0, 1, 1, key, 0, 1, int(crs)]
-    extratags = [
-        (33550, "d", 3, (float(dx), float(dy), 0.0), False),
-        (33922, "d", 6, (0.0, 0.0, 0.0, float(x0), float(y0), 0.0), False),
-        (34735, "H", len(keys), keys, False),
-    ]
+    del geographic
+    arr = np.asarray(data)
+    if arr.ndim == 2:
+        arr = arr[None]
+    profile = {"driver": "GTiff", "height": arr.shape[1], "width": arr.shape[2],
+               "count": arr.shape[0], "dtype": arr.dtype,
+               "crs": f"EPSG:{crs}" if isinstance(crs, int) else crs,
+               "transform": Affine(dx, 0.0, x0, 0.0, -dy, y0)}
     if nodata is not None:
-        extratags.append((42113, "s", 0, f"{nodata:g}", False))
-    tifffile.imwrite(path, np.asarray(data), extratags=extratags)
+        profile["nodata"] = nodata
+    if tiled:
+        profile.update(tiled=True, blockxsize=256, blockysize=256)
+    if compress:
+        profile["compress"] = compress
+    with rasterio.open(path, "w", **profile) as ds:
+        ds.write(arr)
+        if overviews:
+            from rasterio.enums import Resampling
+
+            ds.build_overviews(list(overviews), Resampling.average)

@@ -25,7 +25,7 @@ def _quickstart_with(**changes) -> dict:
         node = data
         *parents, leaf = dotted.split(".")
         for key in parents:
-            node = node[key]
+            node = node.setdefault(key, {})
         node[leaf] = value
     return data
 
@@ -92,7 +92,7 @@ def test_bad_tle_is_a_scenario_error():
         ({"correlator.block_px": 512}, "block_px"),
         ({"scene.sizee_m": 5}, "scene.sizee_m"),
         ({"attitude.jitter": [{"axis": "pitch", "frequency_hz": 2.0}]},
-         "attitude.jitter.sinusoids.0"),
+         "attitude.jitter.0"),  # the list form: the path as written
         ({"camera.tracker.exposure_s": 0.5}, "camera.tracker"),
     ],
 )

@@ -6,13 +6,7 @@ import numpy as np
 import pytest
 
 from scene.classes import SCENE_CLASSES, cloud_layer, local_contrast, scene_class
-from scene.geotiff import (
-    GeoTiffError,
-    terrain_from_geotiff,
-    utm_ground_scale,
-    utm_to_geodetic,
-    write_geotiff,
-)
+from scene.geotiff import GeoTiffError, terrain_from_geotiff, write_geotiff
 
 WINDOW = 80  # 32 m windows of 0.4 m texels (~40 px of 0.8 m: a small tracking block)
 
@@ -112,43 +106,24 @@ def test_geotiff_terrain_round_trip(tmp_path):
     t, centre = terrain_from_geotiff(tmp_path / "o.tif", tmp_path / "d.tif", 2.0)
     # UTM 32N (the writer's default CRS): placed at its own centre, 75 m east of the central
     # meridian 9 E and 4,000,000 - 50 m north; map metres are 1 / 0.9996 ground metres there
-    lat, lon = utm_to_geodetic(32, False, 500075.0, 3999950.0)
+    from pyproj import Transformer
+
+    lon, lat = Transformer.from_crs(32632, 4326, always_xy=True).transform(500075.0, 3999950.0)
     assert centre == pytest.approx((float(lat), float(lon)), abs=1e-12)
     assert 36.1 < centre[0] < 36.2 and centre[1] == pytest.approx(9.0008, abs=1e-4)
     assert t.texel_m == pytest.approx(0.5 / 0.9996, rel=1e-6)
     assert t.dem_spacing_m == pytest.approx(4 * t.texel_m) and t.albedo.shape == (200, 300)
     assert np.allclose(t.albedo, img / 255.0, atol=1e-6)
-    # the DEM node at the orthophoto's upper-left corner: map (500000, 4000000)
+    # the DEM node at the orthophoto's upper-left corner: map (500000, 4000000) to ~1 mm (the
+    # exact placement turns the tile by the grid convergence there, 0.0005 deg)
     r, c = (4000010.0 - 4000000.0) / 3.0 - 0.5, (500000.0 - 499990.0) / 3.0 - 0.5
     r0, c0 = int(r), int(c)
     fr, fc = r - r0, c - c0
     want = (dem[r0, c0] * (1 - fr) * (1 - fc) + dem[r0, c0 + 1] * (1 - fr) * fc
             + dem[r0 + 1, c0] * fr * (1 - fc) + dem[r0 + 1, c0 + 1] * fr * fc)
-    assert t.dem_m[0, 0] == pytest.approx(want, rel=1e-5)
+    assert t.dem_m[0, 0] == pytest.approx(want, rel=1e-3)
     flat, _ = terrain_from_geotiff(tmp_path / "o.tif", None, 2.0)
     assert not flat.dem_m.any()
-
-
-def test_utm_inverse_against_geodesics_and_a_landmark():
-    """On the central meridian the northing is k0 times GeographicLib's meridian arc; the
-    grid is conformal (equal ground scale east and north, 300 km off the meridian too); the
-    Eiffel Tower's UTM 31N coordinates land on it (published to ~1 m)."""
-    from geographiclib.geodesic import Geodesic
-
-    for lat in (0.0, 35.0, 60.0, 80.0):
-        arc = Geodesic.WGS84.Inverse(0.0, 9.0, lat, 9.0)["s12"]
-        got = utm_to_geodetic(32, False, 500000.0, 0.9996 * arc)
-        assert got[0] == pytest.approx(lat, abs=1e-7) and got[1] == pytest.approx(9.0)
-    assert np.allclose(utm_to_geodetic(33, True, 500000.0, 1e7), (0.0, 15.0))
-    assert utm_ground_scale(32, False, 500000.0, 4e6) == pytest.approx(1 / 0.9996, rel=1e-7)
-    lat0, lon0 = (float(v) for v in utm_to_geodetic(32, False, 8e5, 4e6))
-    scales = []
-    for de, dn in ((100.0, 0.0), (0.0, 100.0)):
-        lat1, lon1 = (float(v) for v in utm_to_geodetic(32, False, 8e5 + de, 4e6 + dn))
-        scales.append(Geodesic.WGS84.Inverse(lat0, lon0, lat1, lon1)["s12"] / 100.0)
-    assert scales[0] == pytest.approx(scales[1], rel=1e-6) and scales[0] < 0.9995
-    lat, lon = utm_to_geodetic(31, False, 448252.0, 5411933.0)
-    assert lat == pytest.approx(48.8583, abs=2e-4) and lon == pytest.approx(2.2945, abs=2e-4)
 
 
 def test_geotiff_errors_name_the_file_and_the_fix(tmp_path):

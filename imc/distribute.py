@@ -97,7 +97,7 @@ class DaskRunner(Runner):
 
 @contextmanager
 def runner(workers: int | None, scheduler: str | None = None,
-           memory_limit: str = "auto", connect_timeout_s: float = 10.0) -> Iterator[Runner]:
+           memory_limit: str = "auto", connect_timeout_s: float = 5.0) -> Iterator[Runner]:
     """A Runner: ``scheduler`` (an address) -> that cluster; ``workers`` 0 -> in process;
     otherwise a LocalCluster of ``workers`` (None: one per core) single-threaded processes,
     each limited to ``memory_limit`` (Dask's syntax: '4GiB', 'auto' = memory / workers)."""

@@ -83,7 +83,7 @@ def judge(expect: Mapping[str, BoundConfig], metrics: Mapping) -> list[Outcome]:
             continue
         lo, hi = bound.lo_hi
         ok = all(lo <= v <= hi for v in nums)  # NaN (None) never passes
-        shown = ", ".join(f"{v:.4g}" for v in nums)
+        shown = ", ".join(f"{v:.5g}" for v in nums)
         out.append(Outcome(path, bound.text(), f"[{shown}]" if len(nums) > 1 else shown, ok,
                            "" if ok or not any(map(math.isnan, nums)) else "no value (NaN)"))
     return out

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 from datetime import datetime
+from functools import cache, lru_cache
 from pathlib import Path
 from typing import ClassVar, Literal
 
@@ -467,19 +468,34 @@ def make_block(role: str, kind: str, params: dict, wired: dict | None = None):
     """The block ``kind`` of ``role`` built from a scenario's parameters (validated and
     converted by pydantic, nested dataclasses included) plus the ``wired`` ones the wiring
     derives from the rest of the scenario."""
-    from pydantic import TypeAdapter
-
     from compensation.registry import block_class
 
     check_params(role, kind, params)
-    return TypeAdapter(block_class(role, kind)).validate_python({**params, **(wired or {})})
+    return _adapter(block_class(role, kind)).validate_python({**params, **(wired or {})})
+
+
+@cache
+def _adapter(cls):
+    """pydantic's validator of a block class, built once (building it costs ~5 ms)."""
+    from pydantic import TypeAdapter
+
+    return TypeAdapter(cls)
+
+
+@lru_cache(maxsize=1)
+def _version() -> str:
+    """imcsim's installed version (read once: the metadata lookup costs ~3 ms)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("imcsim")
+    except PackageNotFoundError:
+        return "unknown"
 
 
 def check_params(role: str, kind: str, params: dict) -> None:
     """Validate a block's parameters against its class (pydantic on the dataclass); a
     ValueError '@field@ message' names the offending parameter."""
-    from pydantic import TypeAdapter
-
     from compensation.registry import block_class, kinds
 
     try:
@@ -498,7 +514,7 @@ def check_params(role: str, kind: str, params: dict) -> None:
             raise ValueError(f"@{key}@ unknown parameter of {role} kind {kind!r} "
                              f"(allowed: {allowed})")
     try:
-        TypeAdapter(cls).validate_python(dict(params))
+        _adapter(cls).validate_python(dict(params))
     except ValidationError as e:
         err = e.errors()[0]
         msg = err["msg"].removeprefix("Value error, ")
@@ -706,7 +722,7 @@ class Scenario(_Model):
     plant: PlantConfig = PlantConfig()
     metrics: MetricsConfig = MetricsConfig()
     expect: dict[str, BoundConfig] = Field(
-        default_factory=dict, description="expectations: metric path of metrics.json (e.g. "
+        {}, description="expectations: metric path of metrics.json (e.g. "
         "with_compensation.rms_total_px, tracker.rms_error_px.0) -> bound; `imc run` prints "
         "a pass/fail table and exits 1 when one fails, `imc check` runs them in CI")
 
@@ -761,12 +777,7 @@ class Scenario(_Model):
 
     def digest(self) -> str:
         """Stable hash of the full (defaults filled) scenario and imcsim version, for resuming."""
-        from importlib.metadata import PackageNotFoundError, version
-
-        try:
-            ver = version("imcsim")
-        except PackageNotFoundError:
-            ver = "unknown"
+        ver = _version()
         # expectations judge a run's metrics, they do not change the run
         return hashlib.sha256((ver + self.model_dump_json(exclude={"expect"})).encode()
                               ).hexdigest()[:16]

@@ -74,6 +74,14 @@ def uniform_motion(m: Models, trajectory, n_max: int = MAX_SERIES
     return t, motion - motion[0], trajectory(t)
 
 
+def estimate_px(m: Models, res: LoopResult) -> np.ndarray:
+    """The loop's motion estimate (T, 2) less what the imager follows itself (TDI charge
+    transfer since frame 0), comparable with :func:`uniform_motion`; NaN where invalid."""
+    mid = m.frame_mid_s
+    est = res.record.motion_px - (m.charge_px(mid) - m.charge_px(mid[:1]))
+    return np.where(res.record.motion_valid[:, None], est, np.nan)
+
+
 def write_series(out: Path, m: Models, res: LoopResult, truth: Truth, loop_model=None,
                  frames: np.ndarray | None = None, ref_corners: np.ndarray | None = None
                  ) -> Path:
@@ -82,8 +90,8 @@ def write_series(out: Path, m: Models, res: LoopResult, truth: Truth, loop_model
     arrays: dict[str, np.ndarray] = {
         "t_s": t, "motion_px": motion, "stage_px": stage,
         "imager_start_s": np.array(m.scenario.camera.main_imager.start_s),
-        "frame_t_s": m.frame_t_s, "estimate_px": res.record.motion_px,
-        "estimate_valid": res.record.motion_valid, "centers_px": res.record.centers_px,
+        "frame_t_s": m.frame_t_s, "estimate_px": estimate_px(m, res),
+        "centers_px": res.record.centers_px,
         "block_px": np.array(m.scenario.correlator.block_px),
         "rate_hz": np.array(m.rate_hz)}
     if loop_model is not None:

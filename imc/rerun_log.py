@@ -128,12 +128,13 @@ def _log_tracker(rec, rr, m: Models, res: LoopResult, truth: Truth,
 
 
 def _log_motion(rec, rr, m: Models, res: LoopResult, series: dict) -> None:
+    from imc.figures import estimate_px
+
     t, mo, st = series["t_s"], series["motion_px"], series["stage_px"]
     fine = rr.TimeColumn("time", duration=t)
     frame_t = rr.TimeColumn("time", duration=m.frame_t_s)
     values = {"true": (fine, mo), "stage": (fine, st), "residual": (fine, mo - st),
-              "estimate": (frame_t, np.where(res.record.motion_valid[:, None],
-                                             res.record.motion_px, np.nan))}
+              "estimate": (frame_t, estimate_px(m, res))}
     for i, a in enumerate(AXES):
         for name in SERIES:
             tcol, v = values[name]

@@ -177,3 +177,20 @@ def test_bundled_sweeps_validate():
     for f in sorted((ROOT / "scenarios" / "sweeps").glob("*.yaml")):
         sw = load_sweep(f)
         assert sw.points, f
+
+
+def test_cli_zip_sweep_writes_results_and_report_and_resumes(tmp_path):
+    spec = tiny_sweep(mode="zip", seeds=1).model_dump(mode="json")
+    p = tmp_path / "zip.yaml"
+    p.write_text(yaml.safe_dump(spec))
+    out = tmp_path / "out"
+    r = cli.invoke(app, ["sweep", str(p), "--out", str(out), "--workers", "0"])
+    assert r.exit_code == 0, r.output
+    assert "2 points run, 0 already done, 0 failed" in " ".join(r.output.split())
+    ds = xr.open_dataset(out / "results.nc", engine="h5netcdf")
+    assert ds["rms_reduction"].dims == ("point", "seed") and ds.sizes["point"] == 2
+    assert list(ds["compensation.controller.gain"].values) == [0.3, 0.8]
+    assert list(ds["attitude.jitter.sinusoids.0.frequency_hz"].values) == [1.0, 3.0]
+    assert (out / "report.html").exists() and (out / "figures").is_dir()
+    r = cli.invoke(app, ["sweep", str(p), "--out", str(out), "--workers", "0", "--no-report"])
+    assert r.exit_code == 0 and "0 points run, 2 already done" in " ".join(r.output.split())

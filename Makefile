@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.imcsim-installed
 
-.PHONY: setup demo test lint bench bench-table2 bench-optical bench-loop clean
+.PHONY: setup demo test lint bench bench-table2 bench-optical bench-loop bench-sweep check-scenarios clean
 
 setup: $(STAMP)
 	@sh scripts/ensure-llvm.sh
@@ -50,3 +50,11 @@ bench-loop: setup
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache .ruff_cache *.egg-info
+
+# the workflow: sweep speed-up, per-point overhead, kill -9 + restart, 1,000 points (~20 min)
+bench-sweep: setup
+	RERUN_TELEMETRY_ENABLED=0 $(BIN)/python benchmarks/bench_sweep.py
+
+# every bundled scenario against its expect: section, JUnit XML for CI (rendered: ~15 min)
+check-scenarios: setup
+	RERUN_TELEMETRY_ENABLED=0 $(BIN)/imc check scenarios --junit runs/check/junit.xml --out runs/check

@@ -51,6 +51,9 @@ OPTICAL_BYTES_PER_PX = 40.0
 #: slanted edge's terrain, bytes (measured: +110-430 MB over the run without them)
 BLUR_PATCH_PX = 192
 BLUR_IMAGES_BYTES = 150e6
+#: report.html and its figures (matplotlib, written by every run unless --no-report), bytes
+#: (measured: +90 MB on the quickstart)
+REPORT_BYTES = 150e6
 #: the jitter's evaluation chunk (orbit.jitter._CHUNK) times its components, 4 float arrays
 JITTER_CHUNK = 4096
 JITTER_MAX_COMPONENTS = 20000
@@ -229,6 +232,7 @@ def estimate_run(sc: Scenario) -> RunEstimate:
         base = RENDER_BASE_BYTES
         parts["blur images"] = (BLUR_IMAGES_BYTES + 8.0 * texels
                                 + 2 * BLUR_PATCH_PX**2 * (24.0 + 4.0 * sc.metrics.blur_spp))
+    parts["report"] = REPORT_BYTES
     parts = {k: v for k, v in parts.items() if v > 0}
     # the terrain's generation temporaries are freed before the loop starts
     steady = sum(v for k, v in parts.items() if k != "terrain") + 4.0 * texels
@@ -287,6 +291,8 @@ def _fields_of(sc: Scenario, part: str) -> str:
                 "(and the tile's texels)")
     if part == "blur images":
         return "metrics.blur_images x metrics.blur_spp (the main imager's rendered patches)"
+    if part == "report":
+        return "the run's report (report.html and its figures; --no-report skips them)"
     if part == "plant":
         return ("camera.tracker.rows x cols, duration_s and the image's motion (the texture "
                 "plant's motion maps and margins; attitude.mode, attitude.jitter)")

@@ -23,7 +23,7 @@ from rich.console import Console
 from rich.table import Table
 
 from imc.scenario import ScenarioError, load_scenario
-from imc.yamlload import short
+from imc.yamlload import YamlInputError, load_yaml, read_text, short
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="imcsim: satellite focal-plane image-motion-compensation simulator.")
@@ -228,8 +228,11 @@ def run(
     no_rerun: bool = typer.Option(False, "--no-rerun", help="skip recording.rrd"),
     force: bool = typer.Option(False, "--force", help="run even above the memory budget or "
                                "the frame limit (see imc validate)"),
+    no_report: bool = typer.Option(False, "--no-report", help="skip report.html and its "
+                                   "figures"),
 ) -> None:
-    """Run a scenario: render, track, compensate; write metrics, tracks and a recording."""
+    """Run a scenario: render, track, compensate; write metrics, tracks, a recording and
+    report.html. With an `expect:` section, print its pass/fail table; exit 1 on a fail."""
     from rich.progress import Progress
 
     from imc.io import remove_stale_temps
@@ -286,6 +289,42 @@ def run(
               f"checkpoint {run_info['checkpoint_bytes'] / 1e6:.1f} MB)"
               + (f", resumed at frame {resumed}" if resumed else ""))
     out.print("wrote " + ", ".join(run_info["files"]))
+    _finish_run(sc, out_dir, metrics, report=not no_report)
+
+
+def _finish_run(sc, out_dir: Path, metrics: dict, report: bool) -> None:
+    """The expectations' table (exit 1 when one fails) and the report of a finished run."""
+    import dataclasses
+
+    from imc.expect import judge
+    from imc.htmlreport import EXPECTATIONS, write_run_report
+    from imc.io import write_json
+
+    outcomes = judge(sc.expect, metrics)
+    path = Path(out_dir) / EXPECTATIONS
+    if outcomes:
+        write_json(path, [dataclasses.asdict(o) for o in outcomes])
+    else:
+        path.unlink(missing_ok=True)
+    if report:
+        out.print(f"report: {write_run_report(out_dir)}")
+    if outcomes:
+        out.print(_expect_table(sc.name, outcomes))
+        bad = sum(not o.passed for o in outcomes)
+        if bad:
+            err.print(f"[bold red]{bad} of {len(outcomes)} expectations failed[/]",
+                      highlight=False)
+            raise typer.Exit(1)
+
+
+def _expect_table(name: str, outcomes) -> Table:
+    tab = Table(title=f"{name}: expectations")
+    for col in ("metric", "expected", "value", "result"):
+        tab.add_column(col, justify="left" if col == "metric" else "right")
+    for o in outcomes:
+        tab.add_row(o.path, o.bound, o.value, "[green]pass[/]" if o.passed else
+                    f"[bold red]FAIL[/]{': ' + o.note if o.note else ''}")
+    return tab
 
 
 @app.command(name="metrics")
@@ -466,6 +505,220 @@ def loop_cmd(
     out.print(f"sine sweep vs analytic |S|: largest difference {res['max_error_db']:.2f} dB "
               f"up to {res['f_max_compared_hz']:.1f} Hz (a quarter of the measurement rate)")
     out.print(f"wrote {res['png']} and {res['json']}")
+
+
+_WORKERS_HELP = ("worker processes of a local Dask cluster (one thread each; default: one "
+                 "per core; 0: run in this process)")
+_SCHEDULER_HELP = ("address of a running Dask scheduler (tcp://HOST:8786), started with "
+                   "`dask scheduler` and `dask worker ADDRESS --nthreads 1`")
+_MEMORY_HELP = "memory limit of each local worker (e.g. 4GiB; auto: the machine's / workers)"
+
+
+@app.command()
+def sweep(
+    sweep_file: Path = typer.Argument(..., help="sweep YAML (base scenario, axes, mode, "
+                                      "seeds, metrics)"),
+    out_dir: Path = typer.Option(..., "--out", help="sweep folder (points/, results.*, "
+                                 "report.html); a rerun into it skips finished points"),
+    workers: int | None = typer.Option(None, "--workers", min=0, help=_WORKERS_HELP),
+    scheduler: str | None = typer.Option(None, "--scheduler", help=_SCHEDULER_HELP),
+    memory_limit: str = typer.Option("auto", "--memory-limit", help=_MEMORY_HELP),
+    retry_failed: bool = typer.Option(False, "--retry-failed", help="run failed points "
+                                      "again"),
+    no_report: bool = typer.Option(False, "--no-report", help="skip report.html"),
+    force: bool = typer.Option(False, "--force", help="run points above the memory budget "
+                               "or the frame limit, or more points than the sweep limit"),
+) -> None:
+    """Run a parameter sweep on Dask: every point's metrics in OUT/points/, results as
+    NetCDF (xarray), Parquet and CSV, and report.html with line plots and heat maps."""
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    from imc.distribute import SchedulerError, runner
+    from imc.htmlreport import write_sweep_report
+    from imc.sweep import SweepError, load_sweep, run_sweep
+
+    try:
+        sw = load_sweep(sweep_file, force)
+    except SweepError as e:
+        _fail(str(e))
+    out_dir = _out_dir(str(out_dir))
+    n = len({p.digest for p in sw.points})
+    out.print(f"{sw.config.name}: {len(sw.points)} points ({n} distinct scenarios) over "
+              + " x ".join(f"{a} ({len(v)})" for a, v in sw.axes.items())
+              + f", {sw.config.seeds} seed(s), mode {sw.config.mode}")
+    try:
+        with runner(workers, scheduler, memory_limit) as run_on:
+            out.print(f"running on {run_on.description}")
+            with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                          TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
+                          console=err, transient=True) as prog:
+                task = prog.add_task("points", total=n)
+                started: list[int] = []
+
+                def progress(done: int, total: int) -> None:
+                    if not started:  # the ETA counts the points run here, not those skipped
+                        started.append(done)
+                        prog.reset(task, total=total - done, completed=0)
+                    prog.update(task, completed=done - started[0])
+
+                summary = run_sweep(sw, out_dir, run_on, progress=progress,
+                                    retry_failed=retry_failed)
+    except SchedulerError as e:
+        _fail(str(e))
+    out.print(f"{summary.ran} points run, {summary.skipped} already done, {summary.failed} "
+              f"failed, {len(summary.lost)} lost (rerun to retry) in {summary.wall_s:.1f} s")
+    for line in summary.errors[:10]:
+        err.print(f"[yellow]failed:[/] {line}", highlight=False, soft_wrap=True)
+    for line in summary.lost[:10]:
+        err.print(f"[yellow]lost:[/] {line}", highlight=False, soft_wrap=True)
+    files = list(summary.files)
+    if not no_report:
+        files.append(str(write_sweep_report(out_dir)))
+    out.print("wrote " + ", ".join(files))
+
+
+def _scenario_files(paths: list[Path]) -> list[Path]:
+    """The scenario YAMLs under the paths (folders searched recursively; sweep files left
+    out), in order, each once."""
+
+    from imc.sweep import is_sweep_file
+
+    found: list[Path] = []
+    for p in paths:
+        if not p.exists():
+            _fail(f"{p}: no such file or folder")
+        for f in sorted(p.rglob("*.yaml")) + sorted(p.rglob("*.yml")) if p.is_dir() else [p]:
+            try:
+                sweep_like = is_sweep_file(load_yaml(read_text(f)))
+            except YamlInputError:
+                sweep_like = False  # load_scenario names the problem
+            if not (p.is_dir() and sweep_like) and f not in found:
+                found.append(f)
+    return found
+
+
+@app.command()
+def check(
+    paths: list[Path] = typer.Argument(..., help="scenario files or folders (searched for "
+                                       "*.yaml; sweep files are skipped)"),
+    junit: Path | None = typer.Option(None, "--junit", help="write JUnit XML here (one "
+                                      "testcase per scenario)"),
+    out_dir: Path = typer.Option(Path("runs/check"), "--out", help="folder of the runs "
+                                 "(one subfolder per scenario)"),
+    workers: int | None = typer.Option(None, "--workers", min=0, help="run on a local Dask "
+                                       "cluster of this many workers (default: one after "
+                                       "another in this process)"),
+    scheduler: str | None = typer.Option(None, "--scheduler", help=_SCHEDULER_HELP),
+    memory_limit: str = typer.Option("auto", "--memory-limit", help=_MEMORY_HELP),
+    report: bool = typer.Option(False, "--report", help="also write each run's report.html"),
+    force: bool = typer.Option(False, "--force", help="run scenarios above the memory "
+                               "budget or the frame limit"),
+) -> None:
+    """Run every scenario under PATHS and judge its `expect:` section; exit 1 when an
+    expectation fails or a run errs. --junit writes the results for a CI system."""
+    from imc.distribute import SchedulerError, Task, runner
+    from imc.expect import CaseResult, Outcome, check_one, write_junit
+
+    out_dir = _out_dir(str(out_dir))
+    files = _scenario_files(paths)
+    if not files:
+        _fail(f"no scenario files under {', '.join(map(str, paths))}")
+    scenarios = []
+    for f in files:
+        try:
+            sc = load_scenario(f)
+            _size_check(sc, force)
+            scenarios.append((f, sc))
+        except ScenarioError as e:
+            if junit is not None:
+                write_junit(junit, [CaseResult(f.stem, str(f), 0.0, error=str(e))])
+            _fail(str(e))
+    names = [sc.name for _, sc in scenarios]
+    dirs = [f"{sc.name}" if names.count(sc.name) == 1 else f"{sc.name}_{i}"
+            for i, (_, sc) in enumerate(scenarios)]
+    tasks = [Task(str(i), check_one, (str(f), str(out_dir / d), report))
+             for i, ((f, _), d) in enumerate(zip(scenarios, dirs, strict=True))]
+    results: dict[int, CaseResult] = {}
+    try:
+        with runner(0 if workers is None and scheduler is None else workers, scheduler,
+                    memory_limit) as run_on:
+            out.print(f"checking {len(tasks)} scenarios on {run_on.description}")
+            for key, res in run_on.run(tasks):
+                f, sc = scenarios[int(key)]
+                if isinstance(res, BaseException):
+                    res = {"name": sc.name, "source": str(f), "time_s": 0.0,
+                           "error": f"{type(res).__name__}: {res}".splitlines()[0]}
+                case = CaseResult(res["name"], res["source"], res["time_s"],
+                                  tuple(Outcome(**o) for o in res.get("outcomes", ())),
+                                  res.get("error"))
+                results[int(key)] = case
+                verdict = ("[green]pass[/]" if case.passed else "[bold red]ERROR[/]"
+                           if case.error else "[bold red]FAIL[/]")
+                out.print(f"{verdict}  {case.name} ({f}, {case.time_s:.1f} s"
+                          + (f", {len(case.outcomes)} expectations)" if case.outcomes
+                             else ", no expectations)"), highlight=False)
+                for line in ([case.error] if case.error else
+                             [o.line() for o in case.outcomes if not o.passed]):
+                    out.print(f"      {line}", highlight=False, soft_wrap=True)
+    except SchedulerError as e:
+        _fail(str(e))
+    cases = [results[i] for i in sorted(results)]
+    if junit is not None:
+        write_junit(junit, cases)
+        out.print(f"wrote {junit}")
+    bad = sum(not c.passed for c in cases)
+    out.print(f"{len(cases) - bad} of {len(cases)} scenarios passed")
+    if bad:
+        raise typer.Exit(1)
+
+
+@app.command(name="report")
+def report_cmd(run_dir: Path = typer.Argument(..., help="a run folder (metrics.json) or a "
+                                              "sweep folder (results.nc)")) -> None:
+    """Write report.html and its PNG figures again for a run or a sweep folder."""
+    from imc.htmlreport import write_run_report, write_sweep_report
+
+    if (run_dir / "sweep.json").exists() and (run_dir / "results.nc").exists():
+        out.print(f"wrote {write_sweep_report(run_dir)}")
+    elif (run_dir / "metrics.json").exists():
+        out.print(f"wrote {write_run_report(run_dir)}")
+    else:
+        _fail(f"{run_dir}: neither a run folder (metrics.json) nor a sweep folder "
+              "(sweep.json, results.nc); run `imc run` or `imc sweep` first")
+
+
+@app.command()
+def view(
+    run_dir: Path = typer.Argument(..., help="a run folder (recording.rrd) or a .rrd file"),
+    web: bool = typer.Option(False, "--web", help="serve the web viewer instead of "
+                             "opening a window"),
+) -> None:
+    """Open a run's Rerun recording (with its layout) in the Rerun viewer."""
+    import os
+    import shutil
+    import subprocess
+
+    rrd = run_dir if run_dir.suffix == ".rrd" else run_dir / "recording.rrd"
+    if not rrd.is_file():
+        _fail(f"{rrd}: no recording (run `imc run` without --no-rerun first)")
+    exe = Path(sys.executable).parent / "rerun"
+    exe_s = str(exe) if exe.exists() else shutil.which("rerun")
+    if exe_s is None:
+        _fail("the Rerun viewer is not installed: pip install rerun-sdk")
+    if not web and sys.platform.startswith("linux") and not (
+            os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        _fail("no display for the viewer window: use `imc view --web`, or copy "
+              f"{rrd} to a machine with one and run `rerun {rrd.name}`")
+    cmd = [exe_s, *(["--web-viewer"] if web else []), str(rrd)]
+    out.print(" ".join(cmd))
+    raise typer.Exit(subprocess.call(cmd))
 
 
 bench_app = typer.Typer(add_completion=False, no_args_is_help=True,

@@ -101,7 +101,8 @@ def run_scenario(sc: Scenario, out: Path, save_frames: bool = False, fresh: bool
         metrics["main_imager_blur"] = write_blur_npz(out / "blur.npz", truth, res.trajectory)
     frames = getattr(plant, "frames", None)
     ref_corners = getattr(plant, "ref_corners_rec", None)
-    files = write_outputs(m, res, truth, metrics, out, frames, ref_corners, save_frames, rerun)
+    files = write_outputs(m, res, truth, metrics, out, frames, ref_corners, save_frames, rerun,
+                          loop_model=parts.model)
     files.append(out / "blur.npz")
     if (out / "main_imager.png").exists() and sc.metrics.blur_images:
         files.append(out / "main_imager.png")

@@ -156,8 +156,9 @@ def geometry_summary(m: Models) -> dict:
 
 def write_outputs(m: Models, res: LoopResult, truth: Truth, metrics: dict, out: Path,
                   frames: np.ndarray | None, ref_corners: np.ndarray | None,
-                  save_frames: bool, rerun: bool = True) -> list[Path]:
-    """metrics.json, tracks.csv, recording.rrd and (optionally) frames.npz, atomically."""
+                  save_frames: bool, rerun: bool = True, loop_model=None) -> list[Path]:
+    """metrics.json, tracks.csv, series.npz (for the report), recording.rrd and
+    (optionally) frames.npz, atomically."""
     out.mkdir(parents=True, exist_ok=True)
     rec = res.record
     written = []
@@ -187,6 +188,9 @@ def write_outputs(m: Models, res: LoopResult, truth: Truth, metrics: dict, out: 
                   ref_corners=ref_corners, true_shift_px=truth.meas_px,
                   exposure_s=np.array(m.exposure_s))
         written.append(out / "frames.npz")
+    from imc.figures import write_series
+
+    written.append(write_series(out, m, res, truth, loop_model, frames, ref_corners))
     if rerun:
         from imc.rerun_log import write_recording
 

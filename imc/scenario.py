@@ -11,6 +11,7 @@ import dataclasses
 import hashlib
 import typing
 from datetime import date, datetime, timezone
+from functools import cache, lru_cache
 from pathlib import Path
 from typing import Annotated, ClassVar, Literal
 
@@ -594,12 +595,29 @@ def make_block(role: str, kind: str, params: dict, wired: dict | None = None):
     """The block ``kind`` of ``role`` built from a scenario's parameters (validated and
     converted by pydantic, nested dataclasses included) plus the ``wired`` ones the wiring
     derives from the rest of the scenario."""
-    from pydantic import TypeAdapter
-
     from compensation.registry import block_class
 
     check_params(role, kind, params)
-    return TypeAdapter(block_class(role, kind)).validate_python({**params, **(wired or {})})
+    return _adapter(block_class(role, kind)).validate_python({**params, **(wired or {})})
+
+
+@cache
+def _adapter(cls):
+    """pydantic's validator of a block class, built once (building it costs ~5 ms)."""
+    from pydantic import TypeAdapter
+
+    return TypeAdapter(cls)
+
+
+@lru_cache(maxsize=1)
+def _version() -> str:
+    """imcsim's installed version (read once: the metadata lookup costs ~3 ms)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("imcsim")
+    except PackageNotFoundError:
+        return "unknown"
 
 
 def _bad_number(value, path: str = "") -> tuple[str, object] | None:
@@ -659,8 +677,6 @@ def _nested_problem(hint, value, path: str) -> tuple[str, str] | None:
 def check_params(role: str, kind: str, params: dict) -> None:
     """Validate a block's parameters against its class (pydantic on the dataclass); a
     ValueError '@field@ message' names the offending parameter."""
-    from pydantic import TypeAdapter
-
     from compensation.registry import block_class, kinds
 
     try:
@@ -696,7 +712,7 @@ def check_params(role: str, kind: str, params: dict) -> None:
             raise ValueError(f"@{key}{bad[0]}@ must be a finite number of magnitude <= "
                              f"{MAX_MAGNITUDE:g} (got {short(bad[1])})")
     try:
-        TypeAdapter(cls).validate_python(dict(params))
+        _adapter(cls).validate_python(dict(params))
     except ValidationError as e:
         err = e.errors()[0]
         msg = err["msg"].removeprefix("Value error, ")
@@ -833,6 +849,64 @@ class MetricsConfig(_Model):
                           "(a square number: the stratified sampler rounds to one)")
 
 
+#: the top-level keys of metrics.json (imc/report.py summarize and imc/pipeline.py); an
+#: expectation's metric path starts with one of them
+METRIC_SECTIONS = ("scenario", "frames", "blocks", "compensation_enabled",
+                   "without_compensation", "with_compensation", "rms_reduction", "tracker",
+                   "loop", "main_imager_start_s", "geometry", "correlator_device", "link",
+                   "main_imager_blur")
+
+
+class BoundConfig(_Model):
+    """A bound on one metric of metrics.json: ``{max: 0.15}``, ``{min: 5}`` or
+    ``{within: [lo, hi]}`` (min and max may be given together). A metric that is a list
+    (row, col) must meet the bound in every element unless the path names one (``.0``)."""
+
+    min: float | None = Field(None, description="the metric must be >= min")
+    max: float | None = Field(None, description="the metric must be <= max")
+    within: tuple[float, float] | None = Field(None, description="the metric must lie in "
+                                               "[lo, hi]")
+
+    @model_validator(mode="after")
+    def _check(self) -> BoundConfig:
+        if self.min is None and self.max is None and self.within is None:
+            raise ValueError("give max, min or within [lo, hi]")
+        if self.within is not None and (self.min is not None or self.max is not None):
+            raise ValueError("give within [lo, hi], or min / max, not both")
+        if self.within is not None and self.within[0] > self.within[1]:
+            raise ValueError("within [lo, hi] needs lo <= hi")
+        if self.min is not None and self.max is not None and self.min > self.max:
+            raise ValueError("min exceeds max")
+        return self
+
+    @property
+    def lo_hi(self) -> tuple[float, float]:
+        """The bound as a closed interval (infinite where open)."""
+        if self.within is not None:
+            return self.within
+        return (-np.inf if self.min is None else self.min,
+                np.inf if self.max is None else self.max)
+
+    def text(self) -> str:
+        """The bound as written, e.g. '<= 0.15', '>= 5', 'in [0.1, 0.2]'."""
+        if self.within is not None:
+            return f"in [{self.within[0]:g}, {self.within[1]:g}]"
+        parts = ([f">= {self.min:g}"] if self.min is not None else []) + (
+            [f"<= {self.max:g}"] if self.max is not None else [])
+        return " and ".join(parts)
+
+
+def _check_metric_path(path: str) -> str:
+    parts = path.split(".")
+    if not path or any(not p for p in parts):
+        raise ValueError(f"metric path {path!r} is empty or has an empty part; write "
+                         "e.g. with_compensation.rms_total_px")
+    if parts[0] not in METRIC_SECTIONS:
+        raise ValueError(f"metric path {path!r}: metrics.json has no {parts[0]!r}; it "
+                         f"starts with one of {', '.join(METRIC_SECTIONS)}")
+    return path
+
+
 class Scenario(_Model):
     name: str = Field("scenario", min_length=1, max_length=200, description="run name")
     seed: int = Field(0, ge=0, lt=2**64, description="master seed of every random draw")
@@ -845,6 +919,17 @@ class Scenario(_Model):
     compensation: CompensationConfig = CompensationConfig()
     plant: PlantConfig = PlantConfig()
     metrics: MetricsConfig = MetricsConfig()
+    expect: dict[str, BoundConfig] = Field(
+        {}, description="expectations: metric path of metrics.json (e.g. "
+        "with_compensation.rms_total_px, tracker.rms_error_px.0) -> bound; `imc run` prints "
+        "a pass/fail table and exits 1 when one fails, `imc check` runs them in CI")
+
+    @field_validator("expect")
+    @classmethod
+    def _metric_paths(cls, v: dict) -> dict:
+        for path in v:
+            _check_metric_path(path)
+        return v
 
     @field_validator("name")
     @classmethod
@@ -888,13 +973,10 @@ class Scenario(_Model):
 
     def digest(self) -> str:
         """Stable hash of the full (defaults filled) scenario and imcsim version, for resuming."""
-        from importlib.metadata import PackageNotFoundError, version
-
-        try:
-            ver = version("imcsim")
-        except PackageNotFoundError:
-            ver = "unknown"
-        return hashlib.sha256((ver + self.model_dump_json()).encode()).hexdigest()[:16]
+        ver = _version()
+        # expectations judge a run's metrics, they do not change the run
+        return hashlib.sha256((ver + self.model_dump_json(exclude={"expect"})).encode()
+                              ).hexdigest()[:16]
 
 
 #: fields the schema moves from an older spelling: (where the schema checks it, where an

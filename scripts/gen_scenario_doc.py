@@ -57,7 +57,9 @@ def sections(model: type[BaseModel], prefix: str, out: list[str], title: str) ->
             nested.append((sub, f"{path}.", path))
             rows.append(f"| `{path}` | see below | {field.description or ''} |")
             continue
-        if sub is not None:
+        if sub is not None and typing.get_origin(field.annotation) is dict:
+            nested.append((sub, f"{path}.<metric path>.", f"{path} bounds"))
+        elif sub is not None:
             nested.append((sub, f"{path}[].", f"{path} items"))
         rows.append(f"| `{path}` | {_default(field)} | {field.description or ''} |")
     out.append(f"## {title}\n")

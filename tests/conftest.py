@@ -45,3 +45,42 @@ def fourier_shifted(img: np.ndarray, shifts: np.ndarray) -> np.ndarray:
 
     spec = np.fft.fft2(img)
     return np.stack([np.fft.ifft2(fourier_shift(spec, d)).real for d in shifts])
+
+
+def tiny_base() -> dict:
+    """The quickstart on the analytic plant, 0.3 s on a 128 x 128 tracker (~1 s a run)."""
+    import yaml
+
+    data = yaml.safe_load(QUICKSTART.read_text())
+    data.pop("expect", None)  # the quickstart's bounds are for the full run
+    data.update(duration_s=0.3, plant={"fidelity": "analytic"})
+    data["camera"]["tracker"].update(rows=128, cols=128)
+    data["scene"]["size_m"] = 256
+    data["metrics"]["blur_images"] = False
+    data["compensation"] = {"controller": {"kind": "integrator", "gain": 0.5},
+                            "actuator": {"kind": "ideal"}}
+    return data
+
+
+def tiny_sweep(**changes):
+    """A sweep of tiny_base: 2 gains x 2 jitter frequencies x 2 seeds."""
+    from imc.sweep import SweepConfig
+
+    spec = {"name": "tiny", "base": tiny_base(), "seeds": 2,
+            "axes": {"compensation.controller.gain": [0.3, 0.8],
+                     "attitude.jitter.sinusoids.0.frequency_hz": [1.0, 3.0]}}
+    spec.update(changes)
+    return SweepConfig.model_validate(spec)
+
+
+@pytest.fixture(scope="session")
+def tiny_run(tmp_path_factory):
+    """The tiny sweep run in process, once."""
+    from imc.distribute import runner
+    from imc.sweep import expand, run_sweep
+
+    out = tmp_path_factory.mktemp("sweep")
+    sw = expand(tiny_sweep())
+    with runner(0) as r:
+        summary = run_sweep(sw, out, r)
+    return sw, out, summary

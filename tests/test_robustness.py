@@ -250,6 +250,7 @@ def test_estimate_bounds_a_measured_run(tmp_path, fidelity):
     data = _quickstart(duration_s=0.1, **{"camera.tracker.rows": 128, "plant.fidelity": fidelity,
                                           "camera.main_imager.start_s": 0.0,
                                           "camera.tracker.cols": 128, "scene.size_m": 256})
+    data.pop("expect", None)  # the quickstart's bounds are for its own run
     p = _write(tmp_path, yaml.safe_dump(data))
     # VmHWM: this process's peak (ru_maxrss would carry the parent's from before exec)
     code = ("import re, sys; from imc.cli import main; sys.argv[1:] = ['run', "

@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.imcsim-installed
 
-.PHONY: setup demo test lint bench bench-table2 bench-optical clean
+.PHONY: setup demo test lint bench bench-table2 bench-optical bench-flight bench-texture-map clean
 
 setup: $(STAMP)
 	@sh scripts/ensure-llvm.sh
@@ -42,6 +42,10 @@ bench-table2: setup
 # the optical correlator emulation: accuracy vs SNR and block size, cost of each effect
 bench-optical: setup
 	$(BIN)/python benchmarks/bench_optical.py
+
+# the seed paper's airborne flight test: 9 seeded sessions + a rigid-mount one (~25 min)
+bench-flight: setup
+	$(BIN)/python benchmarks/bench_flight.py
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache .ruff_cache *.egg-info

@@ -47,5 +47,9 @@ bench-optical: setup
 bench-flight: setup
 	$(BIN)/python benchmarks/bench_flight.py
 
+# the seed paper's texture-robustness map: an 8 x 8 block map of a rendered urban scene
+bench-texture-map: setup
+	$(BIN)/python benchmarks/bench_texture_map.py
+
 clean:
 	rm -rf $(VENV) runs .pytest_cache .ruff_cache *.egg-info

@@ -9,11 +9,9 @@ import numpy as np
 import pytest
 import yaml
 from scipy.signal import lsim
-from scipy.spatial.transform import Rotation
 
-from camera.geometry import FocalPlane, Pose, project
+from camera.geometry import FocalPlane, project
 from camera.motion import CameraModel
-from correlator import measure_shift
 from imc.scenario import ScenarioError, parse_scenario
 from orbit.aircraft import Aircraft, AircraftAttitude
 from orbit.frames import LocalFrame
@@ -185,28 +183,16 @@ def test_rendered_attitude_step_at_flight_height_within_0p01_px(urban, height_m)
     2,400 m; the same pixels from 300 m, where rays start half-way down) is measured as the
     camera model predicts: mean of four 112^2 blocks within 0.01 px, each within 0.025 px
     (Monte Carlo noise ~0.006 px per block at spp 16, tests/test_scene_fidelity.py)."""
+    from conftest import attitude_step_error
+
     from scene.kernel import Renderer, Sun
-    from scene.pinhole import ray_keyframes
 
     n = 256
-    fp = FocalPlane(0.110, 0.45 * 0.110 / height_m, n, n)
-    cam = _camera(height_m, fp, 30.0)
-    pose0 = cam.pose(np.array([0.0, 0.0]), nominal=True)
+    cam = _camera(height_m, FocalPlane(0.110, 0.45 * 0.110 / height_m, n, n), 30.0)
     r = Renderer(urban, Sun(50.0, 140.0), n, n, spp=16, ceiling_m=height_m)
     assert r.z_start_m < height_m
-    rot = Rotation.from_rotvec(np.array([-0.2, 0.3, 0.0]) * fp.ifov_rad).as_matrix()
-    pose1 = Pose(pose0.position_m, pose0.enu_from_cam @ rot)
-    img0 = r.render(ray_keyframes(pose0, fp, (0.0, 0.0), r.z_start_m), seed=1)
-    img1 = r.render(ray_keyframes(pose1, fp, (0.0, 0.0), r.z_start_m), seed=2)
-    b = 112
-    corners = [(8, 8), (8, 136), (136, 8), (136, 136)]
-    blocks = [np.stack([im[y:y + b, x:x + b] for y, x in corners]) for im in (img0, img1)]
-    res = measure_shift(*blocks)
-    centres = np.array(corners, float) + (b - 1) / 2.0
-    ground = cam.ground_points(centres, 0.0, urban.height_at)
-    predicted = project(ground, pose1[0], fp) - project(ground, pose0[0], fp)
-    assert res.valid.all()
+    err, predicted, valid = attitude_step_error(r, cam, urban.height_at)
+    assert valid.all()
     assert np.abs(predicted).min() > 0.15
-    err = res.shift - predicted
     assert np.abs(err.mean(axis=0)).max() < 0.01
     assert np.abs(err).max() < 0.025

@@ -1,14 +1,15 @@
 """The seed paper's texture-robustness map (its Fig. 9) on a rendered urban scene.
 
 Usage: python benchmarks/bench_texture_map.py [--grid 8] [--trials 128] [--quick]
-[--geotiff ORTHO.tif [--dem DEM.tif]]; writes benchmarks/out/texture_map/texture_map.json and
-one PNG per resampling (measured error map over the scene, the predicted error map beside it,
-their ratio and the clean texture's bound).
+[--geotiff ORTHO.tif [--dem DEM.tif]]; writes benchmarks/out/texture_map/<scene>.json and one
+PNG per variant (resampling and grey levels): the measured error map over the scene, the
+predicted error map beside it, their ratio and the clean texture's bound.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import resource
 import time
 from pathlib import Path
@@ -44,7 +45,7 @@ def main() -> None:
         terrain, _ = terrain_from_geotiff(args.geotiff, args.dem, 2.0)
         fits = int((min(terrain.size_m) - 2 * cfg.pad_px * cfg.coarse_m - 24.0)
                    // (cfg.block_px * cfg.coarse_m))
-        cfg = TextureMapConfig(grid=max(1, min(grid, fits)), trials=trials)
+        cfg = dataclasses.replace(cfg, grid=max(1, min(grid, fits)))
         name = args.geotiff.stem
     else:
         size = 2.0 * np.ceil((cfg.scene_m + 2 * cfg.pad_px * cfg.coarse_m + 24.0) / 2.0)
@@ -61,8 +62,8 @@ def main() -> None:
         rows[kind] = {**s, "error_px": tm.error_px.tolist(),
                       "predicted_px": tm.predicted_px.tolist(), "bound_px": tm.bound_px.tolist(),
                       "valid": tm.valid.tolist()}
-        plot_map(tm, out / f"{name}_{kind}.png", f"{name}, {kind} resampling")
-        print(f"{kind:11s}: mean {s['mean_px']:.4f} px (paper {PAPER_ERROR_PX['mean']}, target "
+        plot_map(tm, out / f"{name}_{kind}.png", f"{name}, {kind}")
+        print(f"{kind:17s}: mean {s['mean_px']:.4f} px (paper {PAPER_ERROR_PX['mean']}, target "
               f"<= {TARGET_MEAN_PX:.4f}), blocks {s['min_px']:.4f} .. {s['max_px']:.4f} (paper "
               f"{PAPER_ERROR_PX['strong']} .. {PAPER_ERROR_PX['weak']}); measured / predicted "
               f"{s['ratio_min']:.2f} .. {s['ratio_max']:.2f} (median {s['ratio_median']:.2f}), "

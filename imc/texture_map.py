@@ -16,8 +16,8 @@ integrating 3 x 3 fine pixels (it passes 64 % at the coarse Nyquist frequency: a
 (a shift before it is exactly a shift after it). A trial cuts the reference from the rest
 render and the current block from a shifted render moved by a whole number of coarse pixels,
 smears both by the same linear motion (a sinc along a random direction, in the Fourier
-domain), maps radiance to grey levels (the scene's 0.5th and 99.5th percentiles to
-``levels``), adds independent noise of sigma 20 and quantises to 8 bits. True shift = whole
+domain), maps radiance to grey levels (the scene's 0.5th and 99.5th percentiles to a
+variant's levels), adds independent noise of sigma 20 and quantises to 8 bits. True shift = whole
 crop offset - stage offset / 3 (a stage offset s moves the content by -s fine pixels).
 
 Per trial the correlator predicts its error (its CRLB, H^-1 J H^-1 from the pair's spectra);
@@ -56,10 +56,11 @@ class TextureMapConfig:
 
     ``grid``: blocks per side of the map; ``trials``: shifted pairs per block;
     ``max_shift_px``: whole-pixel shifts within +-this; ``max_blur_px``: smear lengths
-    uniform in [0, this]; ``levels``: the grey levels of the scene's 0.5th and 99.5th
-    radiance percentiles: 255 at the top, and a black pedestal of 2 sigma (an ADC offset)
-    so the noise does not clip at 0 (full range, 0..255, puts 40 % of an urban scene's
-    pixels below 30: clipped noise the correlator's error model does not know).
+    uniform in [0, this]; ``variants``: (name, resampling, (black, white)): the grey levels
+    of the scene's 0.5th and 99.5th radiance percentiles. The first two keep a black pedestal
+    of 2 sigma (an ADC offset) so the noise does not clip at 0; the full range 0..255 puts
+    40 % of an urban scene's pixels below 30, where the clipped noise is not the Gaussian
+    noise the correlator's error model (and the bound) assume.
     """
 
     block_px: int = 128
@@ -71,7 +72,9 @@ class TextureMapConfig:
     max_shift_px: int = 4
     max_blur_px: float = 1.0
     noise_sigma: float = 20.0
-    levels: tuple[float, float] = (40.0, 255.0)
+    variants: tuple[tuple[str, str, tuple[float, float]], ...] = (
+        ("bandlimited", "bandlimited", (40.0, 255.0)), ("box", "box", (40.0, 255.0)),
+        ("bandlimited_0_255", "bandlimited", (0.0, 255.0)))
     spp: int = 4
     height_m: float = 2400.0
     focal_length_m: float = 0.110
@@ -251,10 +254,10 @@ def resample_bandlimited(img: np.ndarray, factor: int, taper_from: float = 0.7) 
 RESAMPLING = {"box": bin_fine, "bandlimited": resample_bandlimited}
 
 
-def run_block(sr: SceneRenderer, i: int, j: int, levels: tuple[float, float], seed: int,
-              index: int) -> dict[str, BlockResult]:
-    """All trials of block (i, j), for each resampling: renders, pairs, correlations, errors
-    and bounds. ``levels``: (scale, offset) from radiance to grey levels."""
+def run_block(sr: SceneRenderer, i: int, j: int, levels: dict[str, tuple[float, float]],
+              seed: int, index: int) -> dict[str, BlockResult]:
+    """All trials of block (i, j), for each variant: renders, pairs, correlations, errors
+    and bounds. ``levels``: each variant's (scale, offset) from radiance to grey levels."""
     c = sr.cfg
     rng = streams.rng(seed, "texture_map", index)
     f, b, pad = c.factor, c.block_px, c.pad_px
@@ -274,8 +277,10 @@ def run_block(sr: SceneRenderer, i: int, j: int, levels: tuple[float, float], se
     m0, k0 = c.max_shift_px, pad - c.max_shift_px
     inner = (slice(None), slice(k0, k0 + b), slice(k0, k0 + b))
     out = {}
-    for name, resample in RESAMPLING.items():
-        coarse = [resample(x, f) * levels[0] + levels[1] for x in fine]
+    resampled = {kind: [resample(x, f) for x in fine] for kind, resample in RESAMPLING.items()}
+    for name, kind, _ in c.variants:
+        scale, offset = levels[name]
+        coarse = [x * scale + offset for x in resampled[kind]]
         # the renderer's own noise at the coarse pixel, in grey levels
         mc = float(np.std((coarse[0] - coarse[1])[pad:-pad, pad:-pad]) / np.sqrt(2.0))
         sigma = float(np.sqrt(c.noise_sigma**2 + 1.0 / 12.0 + mc**2))
@@ -335,18 +340,18 @@ class TextureMap:
             "noise_sigma_mean": float(np.nanmean(self.noise_sigma)), "paper_px": PAPER_ERROR_PX}
 
 
-def grey_levels(overview: np.ndarray, cfg: TextureMapConfig) -> tuple[float, float]:
+def grey_levels(overview: np.ndarray, levels: tuple[float, float]) -> tuple[float, float]:
     """(scale, offset) taking the scene's 0.5th and 99.5th radiance percentiles to
-    ``cfg.levels``."""
+    ``levels`` (black, white)."""
     lo, hi = np.percentile(overview, [0.5, 99.5])
-    scale = (cfg.levels[1] - cfg.levels[0]) / float(hi - lo)
-    return scale, cfg.levels[0] - scale * float(lo)
+    scale = (levels[1] - levels[0]) / float(hi - lo)
+    return scale, levels[0] - scale * float(lo)
 
 
 def run_map(terrain: Terrain, cfg: TextureMapConfig = TextureMapConfig(), seed: int = 1,
             log: Log | None = None) -> dict[str, TextureMap]:
     """Tile the scene with ``grid`` x ``grid`` blocks and measure every one, for each
-    resampling."""
+    variant."""
     need = cfg.scene_m + 2 * cfg.pad_px * cfg.coarse_m
     if min(terrain.size_m) < need:
         raise ValueError(f"the scene ({terrain.size_m[0]:.0f} x {terrain.size_m[1]:.0f} m) is "
@@ -354,10 +359,10 @@ def run_map(terrain: Terrain, cfg: TextureMapConfig = TextureMapConfig(), seed: 
                          " lower the grid")
     sr = SceneRenderer(terrain, cfg)
     over = sr.overview()
-    levels = grey_levels(over, cfg)
+    levels = {name: grey_levels(over, lv) for name, _, lv in cfg.variants}
     g = cfg.grid
     keys = ("error", "predicted", "bound", "valid", "sigma")
-    maps = {name: {k: np.full((g, g), np.nan) for k in keys} for name in RESAMPLING}
+    maps = {name: {k: np.full((g, g), np.nan) for k in keys} for name in levels}
     t_corr = 0.0
     for i in range(g):
         for j in range(g):
@@ -375,9 +380,9 @@ def run_map(terrain: Terrain, cfg: TextureMapConfig = TextureMapConfig(), seed: 
                 f"{name} " + " ".join(f"{e:.4f}/{p:.4f}" for e, p in zip(
                     mp["error"][i], mp["predicted"][i], strict=True))
                 for name, mp in maps.items()))
-    grey = np.clip(over * levels[0] + levels[1], 0, 255)
     return {name: TextureMap(mp["error"], mp["predicted"], mp["bound"], mp["valid"],
-                             mp["sigma"], grey, sr.render_s, t_corr)
+                             mp["sigma"], np.clip(over * levels[name][0] + levels[name][1],
+                                                  0, 255), sr.render_s, t_corr)
             for name, mp in maps.items()}
 
 

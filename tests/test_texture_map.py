@@ -90,7 +90,8 @@ def test_rendered_geotiff_block_is_measured_as_predicted(tmp_path):
     write_geotiff(dem, urban.dem_m, 500_000.0 - 1.0, 5_300_000.0 + 1.0, 2.0, 2.0)
     terrain, centre = terrain_from_geotiff(ortho, dem, 2.0)
     assert centre is not None and terrain.albedo.shape[0] == n
-    maps = run_map(terrain, TextureMapConfig(grid=1, trials=96), seed=2)
+    cfg = TextureMapConfig(grid=1, trials=96, variants=TextureMapConfig().variants[:2])
+    maps = run_map(terrain, cfg, seed=2)
     band, box = maps["bandlimited"], maps["box"]
     assert band.valid[0, 0] == 1.0
     assert abs(band.ratio[0, 0] - 1.0) <= 0.3, band.ratio

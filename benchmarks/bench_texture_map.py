@@ -61,16 +61,18 @@ def main() -> None:
         s = tm.summary(TOLERANCE)
         rows[kind] = {**s, "error_px": tm.error_px.tolist(),
                       "predicted_px": tm.predicted_px.tolist(), "bound_px": tm.bound_px.tolist(),
-                      "valid": tm.valid.tolist()}
+                      "success": tm.success.tolist(), "wrong": tm.wrong.tolist()}
         plot_map(tm, out / f"{name}_{kind}.png", f"{name}, {kind}")
         print(f"{kind:17s}: mean {s['mean_px']:.4f} px (paper {PAPER_ERROR_PX['mean']}, target "
               f"<= {TARGET_MEAN_PX:.4f}), blocks {s['min_px']:.4f} .. {s['max_px']:.4f} (paper "
               f"{PAPER_ERROR_PX['strong']} .. {PAPER_ERROR_PX['weak']}); measured / predicted "
               f"{s['ratio_min']:.2f} .. {s['ratio_max']:.2f} (median {s['ratio_median']:.2f}), "
-              f"{s['within_predicted']} of {s['blocks']} within {TOLERANCE:.0%}; / clean bound "
+              f"{s['within_predicted']} of {s['measured_blocks']} measured blocks within "
+              f"{TOLERANCE:.0%} ({s['blocks']} in all); / clean bound "
               f"{s['bound_ratio_min']:.2f} .. {s['bound_ratio_max']:.2f} (median "
-              f"{s['bound_ratio_median']:.2f}), {s['within_bound']} within; valid "
-              f"{100 * s['valid_fraction']:.1f} %", flush=True)
+              f"{s['bound_ratio_median']:.2f}), {s['within_bound']} within; trials "
+              f"successful {100 * s['success_fraction']:.1f} %, wrong "
+              f"{100 * s['wrong_fraction']:.2f} %", flush=True)
     wall = time.perf_counter() - t0
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     tm = next(iter(maps.values()))

@@ -93,7 +93,26 @@ def test_rendered_geotiff_block_is_measured_as_predicted(tmp_path):
     cfg = TextureMapConfig(grid=1, trials=96, variants=TextureMapConfig().variants[:2])
     maps = run_map(terrain, cfg, seed=2)
     band, box = maps["bandlimited"], maps["box"]
-    assert band.valid[0, 0] == 1.0
+    assert band.success[0, 0] == 1.0 and band.wrong[0, 0] == 0.0
     assert abs(band.ratio[0, 0] - 1.0) <= 0.3, band.ratio
     assert band.error_px[0, 0] >= 0.95 * band.bound_px[0, 0]
     assert box.error_px[0, 0] > band.error_px[0, 0]
+
+
+def test_block_error_is_taken_over_successful_trials():
+    """A trial called valid but off by > 0.5 px is wrong, not part of the block's error; an
+    invalid one is neither; a block with fewer than half its trials successful is flagged
+    (NaN error and prediction) while its bound stays."""
+    from imc.texture_map import BlockResult
+
+    errors = np.array([[0.01, -0.01], [-0.01, 0.01], [0.8, 0.0], [0.0, 0.0]])
+    valid = np.array([True, True, True, False])
+    pred = np.full((4, 2), 0.01)
+    r = BlockResult(errors, valid, pred, pred, 20.0)
+    assert r.success.tolist() == [True, True, False, False]
+    assert r.wrong == 0.25 and r.measured
+    assert r.error_px() == pytest.approx(0.01) and r.predicted_px() == pytest.approx(0.01)
+    flagged = BlockResult(errors, np.array([True, False, True, False]), pred, pred, 20.0)
+    assert not flagged.measured
+    assert np.isnan(flagged.error_px()) and np.isnan(flagged.predicted_px())
+    assert flagged.bound_px() == pytest.approx(0.01)

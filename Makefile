@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.imcsim-installed
 
-.PHONY: setup demo test lint bench bench-table2 bench-optical bench-loop bench-sweep check-scenarios clean
+.PHONY: setup demo test lint bench bench-table2 bench-optical bench-loop bench-sweep bench-flight bench-texture-map check-scenarios clean
 
 setup: $(STAMP)
 	@sh scripts/ensure-llvm.sh
@@ -47,6 +47,14 @@ bench-optical: setup
 # the compensation loop: every target of the loop issue (~10 min on 2 cores)
 bench-loop: setup
 	$(BIN)/python benchmarks/bench_loop.py
+
+# the seed paper's airborne flight test: 9 seeded sessions + a rigid-mount one (~25 min)
+bench-flight: setup
+	$(BIN)/python benchmarks/bench_flight.py
+
+# the seed paper's texture-robustness map: an 8 x 8 block map of a rendered urban scene
+bench-texture-map: setup
+	$(BIN)/python benchmarks/bench_texture_map.py
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache .ruff_cache *.egg-info

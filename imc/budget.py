@@ -156,6 +156,9 @@ def _truth_samples(sc: Scenario) -> float:
 def _ground_flow(sc: Scenario) -> tuple[float, float]:
     """(ground speed m/s, nadir ground sample distance m), roughly, from the orbit."""
     o, c = sc.orbit, sc.camera
+    if o.kind == "aircraft":
+        h = o.height_m or 1000.0
+        return o.ground_speed_mps or 0.0, h * c.pixel_pitch_m / c.focal_length_m
     alt = o.altitude_m if o.kind in ("sun_synchronous", "circular") else (
         (o.semi_major_axis_m or 6_378_137.0 + 681e3) - 6_378_137.0 if o.kind == "elements"
         else 681e3)

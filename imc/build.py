@@ -23,11 +23,13 @@ from correlator.tracker import BlockTracker, block_grid
 from imc import streams
 from imc.budget import LIGHT_TEXELS, flat_stand_in
 from imc.scenario import CloudsConfig, Scenario, ScenarioError, make_block
+from orbit.aircraft import Aircraft, AircraftAttitude
 from orbit.attitude import Attitude, orbit_looking_at
 from orbit.frames import LocalFrame
 from orbit.jitter import JitterTerm, RandomJitter, WheelJitter, realize_jitter
 from orbit.kepler import EarthOrbit, Orbit
 from orbit.sun import sun_elevation_azimuth_deg
+from orbit.suspension import Suspension
 from orbit.tle import TleOrbit
 from scene.classes import CloudLayer, cloud_layer, scene_class
 from scene.geotiff import GeoTiffError, terrain_from_geotiff
@@ -86,9 +88,12 @@ class Models:
         return np.stack([t * self.line_rate_hz, np.zeros_like(t)], axis=-1)
 
 
-def build_orbit(sc: Scenario) -> EarthOrbit:
-    """The scenario's orbit; circular and sun-synchronous ones placed to see the scene at t = 0."""
+def build_orbit(sc: Scenario, terrain: Terrain | None = None) -> EarthOrbit:
+    """The scenario's orbit; circular and sun-synchronous ones placed to see the scene at t = 0
+    (an aircraft: over the scene centre half-way through the run, above ``terrain``)."""
     o, a = sc.orbit, sc.attitude
+    if o.kind == "aircraft":
+        return build_aircraft(sc, terrain)
     try:
         if o.kind == "tle":
             return TleOrbit(o.tle_line1, o.tle_line2, sc.epoch)
@@ -122,6 +127,33 @@ def build_orbit(sc: Scenario) -> EarthOrbit:
                             "or change attitude.roll_deg / pitch_deg") from None
 
 
+def build_aircraft(sc: Scenario, terrain: Terrain | None) -> Aircraft:
+    """The scenario's flight over ``terrain``; refuses an aircraft at or below the highest
+    terrain or the cloud tops, and a speed and height that move the image across the tracker
+    within one frame."""
+    o, a, c = sc.orbit, sc.attitude, sc.camera
+    ground = float(np.median(terrain.dem_m)) if terrain is not None else 0.0
+    z = ground + o.height_m
+    top = float(np.max(terrain.dem_m)) if terrain is not None else ground
+    if z <= top + 1.0:
+        raise ScenarioError(f"orbit.height_m: the aircraft at {o.height_m:g} m above the ground "
+                            f"is not above the highest terrain ({top - ground:.0f} m above it);"
+                            " raise orbit.height_m")
+    rows = c.tracker.rows
+    flow_px = (o.ground_speed_mps * c.focal_length_m / (c.pixel_pitch_m * (z - top))
+               / c.tracker.frame_rate_hz)
+    if flow_px >= rows - sc.correlator.block_px:
+        raise ScenarioError(
+            f"orbit.ground_speed_mps: at {o.ground_speed_mps:g} m/s and {o.height_m:g} m the "
+            f"image moves {flow_px:.0f} px per tracker frame, leaving no "
+            f"{sc.correlator.block_px} px block on the {rows}-row tracker; lower "
+            "orbit.ground_speed_mps, raise orbit.height_m or camera.tracker.frame_rate_hz")
+    t_mid = 0.5 * sc.duration_s
+    return Aircraft.over_point(LocalFrame(sc.scene.center_lat_deg, sc.scene.center_lon_deg, 0.0),
+                               z, o.ground_speed_mps, o.heading_deg, sc.epoch, t_mid, ground,
+                               a.roll_deg, a.pitch_deg)
+
+
 def build_jitter(sc: Scenario, ifov_rad: float):
     """The jitter realisation of this scenario (stream 'jitter')."""
     j = sc.attitude.jitter
@@ -137,7 +169,11 @@ def build_jitter(sc: Scenario, ifov_rad: float):
                           tuple((h.number, rad(h.amplitude_urad, h.amplitude_px))
                                 for h in w.harmonics), w.speed_rate_hz_per_s)
               for w in j.wheels]
-    return realize_jitter(terms, sc.duration_s, streams.rng(sc.seed, "jitter"))
+    series = realize_jitter(terms, sc.duration_s, streams.rng(sc.seed, "jitter"))
+    if sc.attitude.suspension is not None:  # what the camera sees through its mount
+        s = sc.attitude.suspension
+        series = Suspension(s.cutoff_hz, s.damping).apply(series)
+    return series
 
 
 #: clouds whose layer would need more cells than this per side get coarser cells
@@ -201,13 +237,18 @@ def build_models(sc: Scenario, light: bool = False) -> Models:
     if centre != (sc.scene.center_lat_deg, sc.scene.center_lon_deg):
         sc = sc.model_copy(update={"scene": sc.scene.model_copy(
             update={"center_lat_deg": centre[0], "center_lon_deg": centre[1]})})
-    orbit = build_orbit(sc)
+    orbit = build_orbit(sc, terrain)
     frame = LocalFrame(sc.scene.center_lat_deg, sc.scene.center_lon_deg, 0.0)
     c, t = sc.camera, sc.camera.tracker
     fp = FocalPlane(c.focal_length_m, c.pixel_pitch_m, t.rows, t.cols, t.center_offset_px)
     a = sc.attitude
+    if clouds is not None and isinstance(orbit, Aircraft) and orbit.height_enu_m <= clouds.top_m:
+        raise ScenarioError(f"orbit.height_m: the aircraft flies below the cloud tops "
+                            f"({clouds.top_m:.0f} m); raise orbit.height_m or set "
+                            "scene.clouds.cover: 0")
+    attitude_cls = AircraftAttitude if isinstance(orbit, Aircraft) else Attitude
     try:
-        attitude = Attitude(
+        attitude = attitude_cls(
             mode=a.mode,
             roll_deg=a.roll_deg if a.mode == "off_nadir" else 0.0,
             pitch_deg=a.pitch_deg if a.mode == "off_nadir" else 0.0,

@@ -204,8 +204,9 @@ class RenderedPlant(TrackerPlant):
             from scene.kernel import Renderer, Sun  # the Mitsuba layer, only when rendering
 
             fp = m.camera.focal_plane
+            ceiling = float(np.min(m.camera.pose(m.frame_t_s).position_m[:, 2]))
             renderer = Renderer(m.terrain, Sun(*m.sun_deg), fp.rows, fp.cols,
-                                spp=m.scenario.scene.spp, clouds=m.clouds)
+                                spp=m.scenario.scene.spp, clouds=m.clouds, ceiling_m=ceiling)
         self.renderer = renderer
         self.render_s = 0.0
 

@@ -60,10 +60,12 @@ class _Model(BaseModel):
     @classmethod
     def _no_bool_numbers(cls, v, info):
         items = v if isinstance(v, list | tuple) else (v,)
-        if any(isinstance(x, bool) for x in items):
+        at = next((i for i, x in enumerate(items) if isinstance(x, bool)), None)
+        if at is not None:
             field = cls.model_fields.get(info.field_name)
             if field is not None and _expects_number(field.annotation):
-                raise ValueError("give a number, not true / false")
+                where = f"@{at}@ " if isinstance(v, list | tuple) else ""  # the element
+                raise ValueError(f"{where}give a number, not true / false")
         return v
 
     @field_validator("*", mode="after")
@@ -113,14 +115,16 @@ _EPOCH_RANGE = (f"must lie between {EPOCH_MIN:%Y-%m-%d} and {EPOCH_MAX:%Y-%m-%d}
 
 
 class OrbitConfig(_Model):
-    """The orbit. ``circular`` and ``sun_synchronous`` orbits are placed so that the line of
-    sight (attitude.roll_deg / pitch_deg) meets the scene centre at t = 0 (mode target) or
-    half-way through the run (scanning modes); ``elements`` and
-    ``tle`` orbits are taken as given and need attitude.mode 'target'."""
+    """The platform's path. ``circular`` and ``sun_synchronous`` orbits are placed so that the
+    line of sight (attitude.roll_deg / pitch_deg) meets the scene centre at t = 0 (mode
+    target) or half-way through the run (scanning modes); ``elements`` and
+    ``tle`` orbits are taken as given and need attitude.mode 'target'. ``aircraft``: straight,
+    level flight height_m above the scene's ground at ground_speed_mps along heading_deg,
+    over the scene centre half-way through the run (attitude.mode nadir or off_nadir)."""
 
-    kind: Literal["sun_synchronous", "circular", "elements", "tle"] = Field(
+    kind: Literal["sun_synchronous", "circular", "elements", "tle", "aircraft"] = Field(
         "sun_synchronous", description="sun_synchronous (inclination from the altitude), "
-        "circular, elements (Keplerian) or tle (SGP4)")
+        "circular, elements (Keplerian), tle (SGP4) or aircraft (straight, level flight)")
     altitude_m: float = Field(681_000.0, gt=150_000.0, lt=50_000_000.0,
                               description="circular / sun_synchronous: altitude above the "
                               "WGS84 equatorial radius, m")
@@ -141,6 +145,12 @@ class OrbitConfig(_Model):
     mean_anomaly_deg: _AngleDeg = Field(0.0, description="elements: mean anomaly at epoch, deg")
     tle_line1: str | None = Field(None, max_length=80, description="tle: line 1")
     tle_line2: str | None = Field(None, max_length=80, description="tle: line 2")
+    height_m: float | None = Field(None, gt=0.0, le=30_000.0, description="aircraft: flight "
+                                   "height above the scene's ground level (the DEM's median), m")
+    ground_speed_mps: float | None = Field(None, gt=0.0, le=1000.0,
+                                           description="aircraft: ground speed, m/s")
+    heading_deg: float = Field(0.0, ge=0.0, lt=360.0, description="aircraft: direction of "
+                               "flight from north toward east, deg")
 
     @field_validator("epoch_utc", mode="before")
     @classmethod
@@ -158,6 +168,19 @@ class OrbitConfig(_Model):
             raise ValueError("kind 'elements' needs semi_major_axis_m (m)")
         if self.kind == "tle" and not (self.tle_line1 and self.tle_line2):
             raise ValueError("kind 'tle' needs tle_line1 and tle_line2")
+        return self
+
+    @model_validator(mode="after")
+    def _aircraft_fields(self) -> OrbitConfig:
+        flight = ("height_m", "ground_speed_mps")
+        if self.kind == "aircraft":
+            missing = [f for f in flight if getattr(self, f) is None]
+            if missing:
+                raise ValueError(f"kind 'aircraft' needs {' and '.join(missing)} (height above "
+                                 "the ground in m, ground speed in m/s)")
+        elif any(getattr(self, f) is not None for f in flight) or self.heading_deg:
+            raise ValueError("height_m, ground_speed_mps and heading_deg describe a flight: "
+                             "set kind 'aircraft' or leave them out")
         return self
 
 
@@ -247,6 +270,14 @@ DEFAULT_JITTER = JitterProfileConfig(
 )
 
 
+class SuspensionConfig(_Model):
+    """The camera suspension: a second-order low-pass between the platform's attitude jitter
+    and the camera (gain 1 / (2 damping) at the cut-off, falling as (cutoff / f)^2 above)."""
+
+    cutoff_hz: float = Field(gt=0.0, le=10_000.0, description="cut-off (natural) frequency, Hz")
+    damping: float = Field(0.3, gt=0.0, le=10.0, description="damping ratio")
+
+
 class AttitudeConfig(_Model):
     mode: Literal["target", "nadir", "off_nadir"] = Field(
         "target",
@@ -263,6 +294,8 @@ class AttitudeConfig(_Model):
                                "flows exactly along the rows (nadir / off_nadir; TDI needs it)")
     jitter: JitterProfileConfig = Field(DEFAULT_JITTER, description="jitter profile (a list: "
                                         "sinusoids only; [] for none)")
+    suspension: SuspensionConfig | None = Field(None, description="camera suspension the "
+                                                "jitter passes through (none: rigid mount)")
 
     @field_validator("jitter", mode="before")
     @classmethod
@@ -955,6 +988,13 @@ class Scenario(_Model):
             raise ValueError("duration_s covers fewer than 2 tracker frames; raise it")
         if self.camera.main_imager.start_s >= self.duration_s:
             raise ValueError("camera.main_imager.start_s must lie within duration_s")
+        return self
+
+    @model_validator(mode="after")
+    def _aircraft(self) -> Scenario:
+        if self.orbit.kind == "aircraft" and self.attitude.mode == "target":
+            raise ValueError("attitude.mode: an aircraft's camera looks 'nadir' or 'off_nadir' "
+                             "(the flight passes over the scene centre half-way through the run)")
         return self
 
     @property

@@ -23,6 +23,9 @@ STREAM_IDS = {
     "analytic": 8,  # analytic plant noise, per frame
     "drops": 9,  # transport losses, per frame
     "texture": 10,  # texture plant (sensor noise), per frame
+    "flight_sensor": 11,  # flight test: the second tracker sensor's noise, per frame
+    "flight_render": 12,  # flight test: the second tracker sensor's render seed, per frame
+    "texture_map": 13,  # texture-robustness map: shifts, blur and noise, per block
 }
 
 
@@ -40,6 +43,6 @@ def rng(seed: int, name: str, *index: int) -> np.random.Generator:
     return np.random.default_rng(key(seed, name, *index))
 
 
-def render_seed(seed: int, k: int) -> int:
-    """Mitsuba's sampler seed of frame k."""
-    return int(np.random.SeedSequence(key(seed, "render", k)).generate_state(1)[0] & 0x7FFFFFFF)
+def render_seed(seed: int, k: int, name: str = "render") -> int:
+    """Mitsuba's sampler seed of frame k (from stream ``name``)."""
+    return int(np.random.SeedSequence(key(seed, name, k)).generate_state(1)[0] & 0x7FFFFFFF)

@@ -56,6 +56,20 @@ def _skew(w: np.ndarray) -> np.ndarray:
     return s
 
 
+def _right_jacobian(phi: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """J_r(phi) v (..., 3): the body angular velocity of R(phi) when phi changes at v, i.e.
+    d/dt R(phi) = R(phi) [J_r(phi) dphi/dt]x; J_r = I - a [phi]x + b [phi]x^2 with
+    a = (1 - cos th) / th^2, b = (th - sin th) / th^3 (series below 1e-4 rad)."""
+    th2 = np.sum(phi * phi, axis=-1, keepdims=True)
+    th = np.sqrt(th2)
+    small = th < 1e-4
+    safe = np.where(small, 1.0, th)
+    a = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
+    b = np.where(small, 1.0 / 6.0 - th2 / 120.0, (safe - np.sin(safe)) / safe**3)
+    c = np.cross(phi, v)
+    return v - a * c + b * np.cross(phi, c)
+
+
 @dataclass(frozen=True)
 class Attitude:
     """Nominal pointing plus jitter; see the module docstring for the modes.
@@ -158,7 +172,9 @@ class Attitude:
         """:meth:`eci_from_body` (..., 3, 3) and its time derivative (..., 3, 3) in 1/s.
 
         The nominal part by a central difference (smooth: < 2 mrad/s), the jitter part
-        analytically: d/dt (N J) = dN/dt J + N J [dphi/dt]x (exact to |phi| ~ 1e-5).
+        analytically: d/dt (N J) = dN/dt J + N J [w]x with the body rate w = J_r(phi) dphi/dt
+        (J_r: SO(3)'s right Jacobian; dphi/dt alone is off by ~|phi| / 2 of the rate, 1e-5 for
+        a satellite, 1e-3 for an aircraft).
         """
         t = np.asarray(t_s, dtype=np.float64)
         n = self.nominal_eci_from_body(orbit, t)
@@ -167,7 +183,8 @@ class Attitude:
         if nominal or len(self.jitter) == 0:
             return n, nd
         jit = self._jitter_matrix(t)
-        return n @ jit, nd @ jit + n @ jit @ _skew(self.jitter.rate_rad_s(t))
+        w = _right_jacobian(self.jitter.rotvec_rad(t), self.jitter.rate_rad_s(t))
+        return n @ jit, nd @ jit + n @ jit @ _skew(w)
 
     def off_nadir_deg(self, orbit: EarthOrbit, t_s) -> np.ndarray:
         """Angle (...) between the line of sight and the geocentric nadir, deg."""

@@ -156,10 +156,14 @@ class Renderer:
     spp : samples per pixel (stratified; also samples the exposure time).
     choice : Mitsuba variant; by default :func:`scene.variant.choose_variant`.
     clouds : an optional cloud layer (its own mesh above the terrain: parallax and shadows).
+    ceiling_m : the lowest camera height (ENU) it will render from, if known: rays then start
+        half-way between the top of the scene and it when 500 m above the top does not fit
+        (an aircraft flying low).
     """
 
     def __init__(self, terrain: Terrain, sun: Sun, rows: int, cols: int, spp: int = 4,
-                 choice: VariantChoice | None = None, clouds: CloudLayer | None = None):
+                 choice: VariantChoice | None = None, clouds: CloudLayer | None = None,
+                 ceiling_m: float | None = None):
         t0 = time.perf_counter()
         self._mi, self._dr, self.choice = load_mitsuba(choice)
         mi = self._mi
@@ -169,6 +173,11 @@ class Renderer:
         if clouds is not None:
             top = max(top, clouds.top_m)
         self.z_start_m = top + 500.0
+        if ceiling_m is not None:
+            if ceiling_m <= top:
+                raise ValueError(f"camera at {ceiling_m:g} m is not above the scene's top "
+                                 f"({top:g} m)")
+            self.z_start_m = min(self.z_start_m, 0.5 * (top + ceiling_m))
         scene_dict = {
             "type": "scene",
             "integrator": {"type": "direct", "emitter_samples": 1, "bsdf_samples": 1},

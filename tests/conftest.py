@@ -84,3 +84,30 @@ def tiny_run(tmp_path_factory):
     with runner(0) as r:
         summary = run_sweep(sw, out, r)
     return sw, out, summary
+
+
+def attitude_step_error(renderer, cam, height_fn) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Render a 0.3 / -0.2 px attitude step (rotation about body x and y) of ``cam`` at
+    t = 0, measure it on four 112^2 blocks of a 256^2 sensor; returns (error (4, 2) px
+    against the camera model's exact projection, the predicted shift (4, 2), valid (4,))."""
+    from scipy.spatial.transform import Rotation
+
+    from camera.geometry import Pose, project
+    from correlator import measure_shift
+    from scene.pinhole import ray_keyframes
+
+    fp = cam.focal_plane
+    pose0 = cam.pose(np.array([0.0, 0.0]), nominal=True)
+    rot = Rotation.from_rotvec(np.array([-0.2, 0.3, 0.0]) * fp.ifov_rad).as_matrix()
+    pose1 = Pose(pose0.position_m, pose0.enu_from_cam @ rot)
+    r = renderer
+    imgs = [r.render(ray_keyframes(p, fp, (0.0, 0.0), r.z_start_m), seed=s)
+            for p, s in ((pose0, 1), (pose1, 2))]
+    b = 112
+    corners = [(8, 8), (8, 136), (136, 8), (136, 136)]
+    blocks = [np.stack([im[y:y + b, x:x + b] for y, x in corners]) for im in imgs]
+    res = measure_shift(*blocks)
+    centres = np.array(corners, float) + (b - 1) / 2.0
+    ground = cam.ground_points(centres, 0.0, height_fn)
+    predicted = project(ground, pose1[0], fp) - project(ground, pose0[0], fp)
+    return res.shift - predicted, predicted, res.valid

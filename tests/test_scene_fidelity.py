@@ -51,23 +51,13 @@ def urban_renderer():
 @pytest.mark.parametrize("roll_deg", [0.0, 20.0])
 def test_commanded_subpixel_pose_change_is_measured_within_0p01_px(urban_renderer, roll_deg):
     """0.3 px / -0.2 px attitude step, nadir and 20 deg off-nadir with yaw steering."""
+    from conftest import attitude_step_error
+
     terrain, r = urban_renderer
-    fp = FocalPlane(10.0, 12e-6, N, N)
-    cam = _camera(roll_deg, fp)
-    pose0 = cam.pose(np.array([0.0, 0.0]), nominal=True)
-    rot = Rotation.from_rotvec(np.array([-0.2, 0.3, 0.0]) * fp.ifov_rad).as_matrix()
-    pose1 = Pose(pose0.position_m, pose0.enu_from_cam @ rot)
-    img0 = r.render(ray_keyframes(pose0, fp, (0.0, 0.0), r.z_start_m), seed=1)
-    img1 = r.render(ray_keyframes(pose1, fp, (0.0, 0.0), r.z_start_m), seed=2)
-    b = 112
-    corners = [(8, 8), (8, 136), (136, 8), (136, 136)]
-    res = measure_shift(_blocks(img0, corners, b), _blocks(img1, corners, b))
-    centres = np.array(corners, float) + (b - 1) / 2.0
-    ground = cam.ground_points(centres, 0.0, terrain.height_at)
-    predicted = project(ground, pose1[0], fp) - project(ground, pose0[0], fp)
-    assert res.valid.all()
+    cam = _camera(roll_deg, FocalPlane(10.0, 12e-6, N, N))
+    err, predicted, valid = attitude_step_error(r, cam, terrain.height_at)
+    assert valid.all()
     assert np.abs(predicted).min() > 0.15  # the command is really sub-pixel and 2-D
-    err = res.shift - predicted
     assert np.abs(err.mean(axis=0)).max() < 0.01
     assert np.abs(err).max() < 0.025
 

@@ -502,8 +502,16 @@ def loop_cmd(
                      title=sc.name)
     mg = parts.margins
     out.print(f"{sc.name}: {_margins_text(mg)}; 0 dB crossover {mg.crossover_hz:.1f} Hz")
-    out.print(f"sine sweep vs analytic |S|: largest difference {res['max_error_db']:.2f} dB "
-              f"up to {res['f_max_compared_hz']:.1f} Hz (a quarter of the measurement rate)")
+    off = " (line identification off)" if res["sweep_identification_off"] else ""
+    out.print(f"sine sweep{off} vs analytic |S|: largest difference {res['max_error_db']:.2f} "
+              f"dB up to {res['f_max_compared_hz']:.1f} Hz (a quarter of the measurement rate)")
+    if res["sweep_measured_adaptive"] is not None:
+        import numpy as np
+
+        gain = np.array(res["sweep_analytic"]) / np.maximum(res["sweep_measured_adaptive"], 1e-12)
+        inside = np.array(res["sweep_hz"]) <= res["f_max_compared_hz"]
+        out.print(f"with identification the sine is found as a line: up to "
+                  f"{20 * np.log10(gain[inside].max()):.1f} dB below |S(f)|")
     out.print(f"wrote {res['png']} and {res['json']}")
 
 

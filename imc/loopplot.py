@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +32,16 @@ def loop_study(model: LoopModel, out_dir: Path, n_sweep: int = 12, amplitude_px:
     s = np.abs(model.rejection(f))
     f_cmp = 0.25 * rate
     f_sweep = np.geomspace(rate * 5e-3, 0.45 * rate, n_sweep)
-    meas = measured_rejection(model, f_sweep, amplitude_px=amplitude_px)
+    adaptive = bool(getattr(model.controller, "identify", False))
+    # the analytic model is the loop's linear part: a predictor that identifies lines finds
+    # the swept sine itself and rejects it far below |S(f)|, so the model is checked with
+    # identification off, and the adaptive loop's own sweep is drawn beside it
+    linear = (dataclasses.replace(model, controller=dataclasses.replace(model.controller,
+                                                                        identify=False))
+              if adaptive else model)
+    meas = measured_rejection(linear, f_sweep, amplitude_px=amplitude_px)
+    meas_adaptive = (measured_rejection(model, f_sweep, amplitude_px=amplitude_px)
+                     if adaptive else None)
     ana = np.abs(model.rejection(f_sweep))
     inside = f_sweep <= f_cmp
     diff_db = 20 * np.log10(np.maximum(meas, 1e-12) / np.maximum(ana, 1e-12))
@@ -44,7 +54,11 @@ def loop_study(model: LoopModel, out_dir: Path, n_sweep: int = 12, amplitude_px:
     fig, ax = plt.subplots(figsize=(7.5, 4.6), dpi=120)
     ax.loglog(f, s, label="analytic |S(f)|", color="C0")
     ax.loglog(f, bound, "--", color="0.5", label=f"delay bound (L = {lag * 1e3:.2f} ms)")
-    ax.loglog(f_sweep, meas, "o", color="C3", label="sine sweep (analytic plant)")
+    ax.loglog(f_sweep, meas, "o", color="C3", label="sine sweep (analytic plant)"
+              + (", line identification off" if adaptive else ""))
+    if meas_adaptive is not None:
+        ax.loglog(f_sweep, meas_adaptive, "^", color="C2", mfc="none",
+                  label="sine sweep, identifying the sine as a line")
     ax.axhline(1.0, color="0.8", lw=0.8)
     ax.axvline(f_cmp, color="0.85", lw=0.8, ls=":")
     ax.set_xlabel("frequency (Hz)")
@@ -66,6 +80,9 @@ def loop_study(model: LoopModel, out_dir: Path, n_sweep: int = 12, amplitude_px:
         "sweep_hz": f_sweep.tolist(),
         "sweep_measured": meas.tolist(),
         "sweep_analytic": ana.tolist(),
+        "sweep_identification_off": adaptive,
+        "sweep_measured_adaptive": (meas_adaptive.tolist() if meas_adaptive is not None
+                                    else None),
         "max_error_db": float(np.max(np.abs(diff_db[inside]))) if inside.any() else None,
         "f_max_compared_hz": f_cmp,
         "png": str(png),

@@ -7,9 +7,13 @@ transforms (float32 in, complex64 out, unnormalised forward, 1/n inverse, as ``s
 
 FFTW plans are made once per (transform, batch, shape) and per thread (a plan object carries
 its arrays, so threads do not share one), with ``FFTW_MEASURE``; the wisdom FFTW gathers makes
-each further batch size cheap to plan. Stacks are transformed in batches of
-:data:`BATCH` blocks, so at most ``BATCH`` plans exist per shape and thread. On this 2-core
-machine a 128 x 128 real transform costs 23 us with FFTW and 34-42 us with pocketfft.
+each further batch size cheap to plan. The wisdom is kept on disk (:func:`wisdom_path`:
+``IMC_FFTW_WISDOM``, else ``~/.cache/imcsim/``), read at the first plan and written after
+each new one, so every process on a machine picks the same algorithms: a run, the same run
+again and a resumed run compute bit-identical transforms (``FFTW_MEASURE`` alone chooses by
+timing, which differs from process to process in the last bits). Stacks are transformed in
+batches of :data:`BATCH` blocks, so at most ``BATCH`` plans exist per shape and thread. On
+this 2-core machine a 128 x 128 real transform costs 23 us with FFTW and 34-42 us with pocketfft.
 
 References
 ----------
@@ -19,9 +23,11 @@ Frigo & Johnson, "The design and implementation of FFTW3", Proc. IEEE 93 (2005) 
 from __future__ import annotations
 
 import os
+import platform
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
 import numpy as np
 import scipy.fft as sfft
@@ -53,6 +59,7 @@ def _initial() -> str:
 _state = {"backend": _initial()}
 _plans: dict[tuple, object] = {}
 _plan_lock = threading.Lock()
+_wisdom = {"loaded": False}
 
 
 def backend() -> str:
@@ -85,12 +92,58 @@ def empty(shape: tuple[int, ...], dtype=np.float32) -> np.ndarray:
     return np.empty(shape, dtype=dtype)
 
 
+def wisdom_path() -> Path:
+    """The file of FFTW's wisdom for this machine and pyfftw version."""
+    env = os.environ.get("IMC_FFTW_WISDOM", "").strip()
+    if env:
+        return Path(env)
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    ver = getattr(pyfftw, "__version__", "0")
+    return base / "imcsim" / f"fftw-wisdom-{ver}-{platform.machine()}.npz"
+
+
+def _load_wisdom() -> None:
+    """Merge the wisdom file into this process's wisdom (once; a missing or damaged file is
+    no wisdom)."""
+    if _wisdom["loaded"]:
+        return
+    _wisdom["loaded"] = True
+    try:
+        with np.load(wisdom_path()) as f:
+            pyfftw.import_wisdom(tuple(f[k].tobytes() for k in ("double", "single", "long")))
+    except (OSError, ValueError, KeyError, EOFError):
+        pass
+
+
+def _save_wisdom() -> None:
+    """Write this process's wisdom, merged with the file's, atomically (best effort: a
+    read-only cache only costs the cross-process bit identity)."""
+    path = wisdom_path()
+    try:
+        with np.load(path) as f:  # another process's newer wisdom
+            pyfftw.import_wisdom(tuple(f[k].tobytes() for k in ("double", "single", "long")))
+    except (OSError, ValueError, KeyError, EOFError):
+        pass
+    d, s, lng = pyfftw.export_wisdom()
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        with open(tmp, "wb") as f:
+            np.savez(f, double=np.frombuffer(d, np.uint8), single=np.frombuffer(s, np.uint8),
+                     long=np.frombuffer(lng, np.uint8))
+        os.replace(tmp, path)
+    except OSError:
+        pass
+
+
 def _plan(kind: str, n: int, h: int, w: int):
     """The calling thread's FFTW plan of ``n`` (h, w) transforms ('r2c' or 'c2r')."""
     key = (kind, n, h, w, threading.get_ident())
     plan = _plans.get(key)
     if plan is None:
         with _plan_lock:  # FFTW's planner is not thread-safe
+            _load_wisdom()
+            known = pyfftw.export_wisdom()
             real = pyfftw.empty_aligned((n, h, w), dtype=np.float32)
             spec = pyfftw.empty_aligned((n, h, w // 2 + 1), dtype=np.complex64)
             if kind == "r2c":
@@ -98,6 +151,8 @@ def _plan(kind: str, n: int, h: int, w: int):
             else:
                 plan = pyfftw.FFTW(spec, real, axes=(1, 2), direction="FFTW_BACKWARD",
                                    flags=("FFTW_MEASURE", "FFTW_DESTROY_INPUT"), threads=1)
+            if pyfftw.export_wisdom() != known:  # a new algorithm was measured
+                _save_wisdom()
         _plans[key] = plan
     return plan
 

@@ -363,9 +363,9 @@ def _flip(p: Path) -> None:
     p.write_bytes(bytes(b))
 
 
-def _differs(a, b, path="metrics", rel=1e-6) -> str | None:
-    """Where two metrics differ (numbers beyond ``rel``: FFTW_MEASURE picks its plans by
-    timing, so runs agree to rounding, not bit for bit), or None."""
+def _differs(a, b, path="metrics", rel=0.0) -> str | None:
+    """Where two metrics differ (numbers beyond ``rel``; 0: bit for bit, which FFTW's wisdom
+    file makes possible across processes, see correlator.fftbackend), or None."""
     if isinstance(a, dict):
         if not isinstance(b, dict) or a.keys() != b.keys():
             return path

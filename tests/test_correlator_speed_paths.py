@@ -174,3 +174,26 @@ def test_image_pairs_move_any_image_by_the_stated_shift():
     assert res.valid.all() and np.abs(res.shift - d).max() < 0.02
     with pytest.raises(ValueError, match="images"):
         image_pairs([img[:50, :50]], 2, 64, np.random.default_rng(0))
+
+
+@pytest.mark.skipif("fftw" not in fftbackend.available(), reason="pyfftw not installed")
+def test_fftw_wisdom_file_makes_every_process_use_the_same_plans(tmp_path):
+    """The first process measures its plans and writes the wisdom file; a second process
+    plans from it (measures nothing new, so the file is not rewritten) and gets the same
+    shifts bit for bit: a run and its resumed run agree exactly."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import numpy as np; from correlator import measure_shift\n"
+            "rng = np.random.default_rng(1); a = rng.random((16, 96, 96), np.float32)\n"
+            "b = np.roll(a, (1, 2), axis=(1, 2)) + 0.05 * rng.random(a.shape, np.float32)\n"
+            "print(measure_shift(a, b).shift.astype(np.float64).tobytes().hex())")
+    env = {**os.environ, "IMC_FFTW_WISDOM": str(tmp_path / "w.npz"), "IMC_FFT": "fftw"}
+    first = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                           text=True, check=True).stdout
+    written = (tmp_path / "w.npz").read_bytes()
+    second = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                            text=True, check=True).stdout
+    assert second == first
+    assert (tmp_path / "w.npz").read_bytes() == written

@@ -179,9 +179,10 @@ def validate(
     parts = build_loop(build_models(sc, light=True))
     mg = parts.margins
     name = short(str(scenario), 200)
-    out.print(f"{name}: ok ({sc.n_frames} frames, {sc.correlator.n_blocks} blocks; "
-              f"loop {sc.compensation.controller.kind}: {_margins_text(mg)})", highlight=False,
-              soft_wrap=True)
+    loop = (f"loop {sc.compensation.controller.kind}: {_margins_text(mg)}"
+            if sc.compensation.enabled else "loop off: compensation.enabled is false")
+    out.print(f"{name}: ok ({sc.n_frames} frames, {sc.correlator.n_blocks} blocks; {loop})",
+              highlight=False, soft_wrap=True)
     out.print(f"run size: {est.text()}", highlight=False, soft_wrap=True)
     if est.texels > LIGHT_TEXELS and sc.scene.kind != "geotiff":
         out.print(f"terrain not built ({est.texels / 1e6:.1f} M texels): the geometry was "

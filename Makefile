@@ -63,6 +63,6 @@ clean:
 bench-sweep: setup
 	RERUN_TELEMETRY_ENABLED=0 $(BIN)/python benchmarks/bench_sweep.py
 
-# every bundled scenario against its expect: section, JUnit XML for CI (rendered: ~15 min)
+# every bundled scenario against its expect: section, JUnit XML for CI (~4 min)
 check-scenarios: setup
 	RERUN_TELEMETRY_ENABLED=0 $(BIN)/imc check scenarios --junit runs/check/junit.xml --out runs/check

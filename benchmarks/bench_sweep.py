@@ -78,10 +78,41 @@ def timed_sweep(cfg: SweepConfig, out: Path, workers: int) -> dict:
             - sum(run_s) / max(len(run_s), 1)}
 
 
+_HALF = """
+import json, sys, time
+sys.path.insert(0, {bench!r})
+from bench_sweep import small_sweep
+from imc.sweep import expand, run_point
+points = expand(small_sweep({g}, {f}, 2.0, "speed")).points[{part}::2]
+run_point(points[0].scenario, {work!r} + "/warm", False)  # imports, first-run caches
+t = time.perf_counter()
+for p in points:
+    run_point(p.scenario, {work!r} + "/p", False)
+print(json.dumps({{"n": len(points), "s": time.perf_counter() - t}}))
+"""
+
+
+def two_processes(tmp: Path, g: int, f: int) -> dict:
+    """The machine's own scaling for this work, no Dask: two plain processes, each warmed
+    up, each running half of the points one after another, at the same time."""
+    procs = [subprocess.Popen([sys.executable, "-c", _HALF.format(
+        bench=str(ROOT / "benchmarks"), g=g, f=f, part=i, work=str(tmp / f"half{i}"))],
+        stdout=subprocess.PIPE, text=True, env=ENV) for i in (0, 1)]
+    outs = [json.loads(p.communicate()[0].strip().splitlines()[-1]) for p in procs]
+    n = sum(o["n"] for o in outs)
+    wall = max(o["s"] for o in outs)
+    return {"points": n, "sweep_s": wall, "points_per_hour": 3600.0 * n / wall}
+
+
 def speed(tmp: Path, log) -> dict:
-    """Serial (in process) against 2 single-threaded workers on the same 24 points; the
-    per-point overhead with 1 worker and in process."""
-    cfg = small_sweep(6, 4, 2.0, "speed")
+    """Serial (in process, warmed up) against 2 single-threaded workers (warmed up at the
+    cluster's start) on the same 48 points; the per-point overhead with 1 worker and in
+    process; and two plain processes (no Dask) as the machine's own bound."""
+    g, f = 8, 6
+    cfg = small_sweep(g, f, 2.0, "speed")
+    from imc.sweep import run_point
+
+    run_point(expand(cfg).points[0].scenario, str(tmp / "warm"), False)  # as the workers
     res = {}
     for label, w in (("serial", 0), ("dask_1", 1), ("dask_2", 2)):
         res[label] = timed_sweep(cfg, tmp / label, w)
@@ -89,6 +120,12 @@ def speed(tmp: Path, log) -> dict:
             f"(+{res[label]['start_s']:.1f} s start), {res[label]['points_per_hour']:.0f} "
             f"points/h; mean run {res[label]['mean_run_s']:.2f} s, overhead "
             f"{res[label]['overhead_per_point_s']:.3f} s/point")
+    res["two_processes"] = two_processes(tmp, g, f)
+    log(f"  two plain processes (no Dask): {res['two_processes']['points']} points in "
+        f"{res['two_processes']['sweep_s']:.1f} s, "
+        f"{res['two_processes']['points_per_hour']:.0f} points/h")
+    res["speedup_two_processes_vs_serial"] = (res["two_processes"]["points_per_hour"]
+                                              / res["serial"]["points_per_hour"])
     res["speedup_2_vs_serial"] = (res["dask_2"]["points_per_hour"]
                                   / res["serial"]["points_per_hour"])
     res["speedup_2_vs_serial_with_start"] = (res["dask_2"]["points_per_hour_with_start"]
@@ -224,13 +261,16 @@ def big(tmp: Path, log) -> dict:
 def markdown(r: dict) -> str:
     s = r["speed"]
     lines = ["| figure | value |", "|---|---|",
-             f"| 24 analytic points (2 s each), serial in process | "
+             f"| {s['serial']['points']} analytic points (2 s each), serial in process | "
              f"{s['serial']['points_per_hour']:.0f} points/h |",
              f"| the same, Dask LocalCluster 2 workers x 1 thread | "
              f"{s['dask_2']['points_per_hour']:.0f} points/h "
              f"(+{s['dask_2']['start_s']:.1f} s cluster start) |",
              f"| speed-up, 2 workers vs serial | {s['speedup_2_vs_serial']:.2f}x "
              f"({s['speedup_2_vs_serial_with_start']:.2f}x counting the cluster start) |",
+             f"| the machine's own bound: two plain processes (no Dask), half the points "
+             f"each | {s['two_processes']['points_per_hour']:.0f} points/h, "
+             f"{s['speedup_two_processes_vs_serial']:.2f}x serial |",
              f"| per-point overhead, 1 Dask worker (analytic plant) | "
              f"{s['dask_1']['overhead_per_point_s']:.3f} s (run itself "
              f"{s['dask_1']['mean_run_s']:.2f} s) |",

@@ -22,9 +22,11 @@ from imc.build import Models
 from imc.io import atomic_write, write_npz
 from imc.truth import Truth
 
-#: PSF grid: bin size (px) and half-width (px) at least
+#: PSF grid: bin size (px; coarser when the residual is large), half-width (px) at least,
+#: and the most bins a side (a diverging loop's residual of tens of px stays a small image)
 PSF_BIN_PX = 0.02
 PSF_MIN_HALF_PX = 0.5
+PSF_MAX_BINS = 201
 #: frequencies of the 2-D MTF, cycles/px (0 .. 1, Nyquist at the middle)
 MTF_FREQS = np.linspace(-1.0, 1.0, 41)
 
@@ -51,10 +53,13 @@ def window_blur(truth: Truth, trajectory: Trajectory | None) -> dict[str, np.nda
     """PSF and MTF images of every main-imager exposure (integration window)."""
     r = truth.residual_px(trajectory)
     wins = np.unique(truth.window)
-    span = max(PSF_MIN_HALF_PX, float(np.max(np.abs(r - r.mean(axis=0)))) * 1.05)
-    psf = np.stack([psf_image(r[truth.window == w], span) for w in wins])
-    mtf = np.stack([mtf_image(r[truth.window == w]) for w in wins])
-    return {"psf": psf, "mtf": mtf, "psf_bin_px": np.array(PSF_BIN_PX),
+    groups = [r[truth.window == w] for w in wins]
+    span = max(PSF_MIN_HALF_PX, 1.05 * max(float(np.max(np.abs(g - g.mean(axis=0))))
+                                           for g in groups))
+    bin_px = max(PSF_BIN_PX, 2.0 * span / (PSF_MAX_BINS - 2))
+    psf = np.stack([psf_image(g, span, bin_px) for g in groups])
+    mtf = np.stack([mtf_image(g) for g in groups])
+    return {"psf": psf, "mtf": mtf, "psf_bin_px": np.array(bin_px),
             "mtf_freqs": MTF_FREQS, "window_start_s": np.array(
                 [truth.t_s[truth.window == w][0] for w in wins]) - 0.5 * (
                 truth.t_s[1] - truth.t_s[0])}
@@ -208,11 +213,10 @@ def main_imager_study(m: Models, trajectory: Trajectory, truth: Truth, out: Path
         ax.set_title(name)
         ax.axis("off")
     blur = np.load(out / "blur.npz")
-    n = blur["open_psf"].shape[1] // 2
-    ext = [-n * PSF_BIN_PX, n * PSF_BIN_PX, n * PSF_BIN_PX, -n * PSF_BIN_PX]
     for ax, key, title in ((axes[1][0], "open_psf", "residual PSF, open loop"),
                            (axes[1][1], "closed_psf", "residual PSF, closed loop")):
-        ax.imshow(blur[key][w], cmap="magma", extent=ext)
+        half = 0.5 * blur[key].shape[1] * float(blur[f"{key}_bin_px"])
+        ax.imshow(blur[key][w], cmap="magma", extent=[-half, half, half, -half])
         ax.set_title(title, fontsize=9)
         ax.set_xlabel("col (px)")
         ax.set_ylabel("row (px)")

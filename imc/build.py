@@ -493,6 +493,14 @@ def _check_margins(comp, mg) -> None:
         raise ScenarioError(f"{where}: the loop passes within {mg.modulus_margin:.2f} of -1 "
                             f"(modulus margin; compensation.min_modulus_margin is "
                             f"{comp.min_modulus_margin:g}); lower it")
+    # a predictor (pseudo-open loop) has no -1 point to pass near: its robustness is the
+    # peak of |S| itself (for a plain feedback loop 1 / peak |S| is the modulus margin)
+    if mg.peak_rejection * comp.min_modulus_margin > 1.0:
+        raise ScenarioError(f"{where}: the loop amplifies motion near {mg.peak_hz:.3g} Hz "
+                            f"{mg.peak_rejection:.1f}x (peak |S|; at most 1 / "
+                            f"compensation.min_modulus_margin = "
+                            f"{1.0 / comp.min_modulus_margin:.3g}x); lower it, or shorten the "
+                            "latency")
 
 
 def nominal_target(m: Models):

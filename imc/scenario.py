@@ -836,7 +836,8 @@ class CompensationConfig(_Model):
     min_phase_margin_deg: float = Field(20.0, ge=0.0, le=90.0, description="a design with "
                                         "less phase margin is refused, deg")
     min_modulus_margin: float = Field(0.25, ge=0.0, le=1.0, description="a design whose "
-                                      "loop comes closer to -1 (least |1 + L|) is refused")
+                                      "loop comes closer to -1 (least |1 + L|), or whose "
+                                      "rejection |S| peaks above 1 / this, is refused")
 
     @model_validator(mode="before")
     @classmethod

@@ -129,6 +129,39 @@ def test_unstable_or_marginal_design_is_refused_naming_the_field():
     assert build_loop(build_models(parse_scenario(data))).margins.stable
 
 
+def test_a_predictor_that_amplifies_too_much_is_refused_naming_the_field():
+    """A Kalman predictor has no -1 point to pass near; its peak |S| is the robustness
+    figure: the seed's device (0.155 s of delay) peaks at 8.6x near 3.4 Hz, refused under
+    the default (4x), allowed at min_modulus_margin 0.1 (the scenario's own choice)."""
+    data = yaml.safe_load((ROOT / "scenarios" / "seed_device.yaml").read_text())
+    data.pop("expect", None)
+    data["compensation"]["min_modulus_margin"] = 0.25
+    with pytest.raises(ScenarioError, match=r"compensation\.controller\.bandwidth_hz: the "
+                                            r"loop amplifies motion near 3\.\d+ Hz 8\.\dx"):
+        build_loop(build_models(parse_scenario(data), light=True))
+    data["compensation"]["min_modulus_margin"] = 0.1
+    mg = build_loop(build_models(parse_scenario(data), light=True)).margins
+    assert 4.0 < mg.peak_rejection < 10.0 and 3.0 < mg.peak_hz < 4.0
+
+
+def test_the_residual_psf_stays_a_small_image_when_the_loop_diverges():
+    """A residual of tens of px (a diverging loop) gets coarser PSF bins, not a grid of
+    thousands of 0.02 px bins a side (the sweep's 20 GB point)."""
+    from types import SimpleNamespace
+
+    from imc.blur import PSF_BIN_PX, PSF_MAX_BINS, window_blur
+
+    t = np.linspace(0.0, 1.0, 4000)
+    window = (t // 0.25).astype(int)
+    for amp_px, coarse in ((0.3, False), (40.0, True)):
+        r = amp_px * np.stack([np.sin(2 * np.pi * 3 * t), np.cos(2 * np.pi * 5 * t)], -1)
+        truth = SimpleNamespace(t_s=t, window=window, residual_px=lambda _traj, r=r: r)
+        b = window_blur(truth, None)
+        assert b["psf"].shape[1] <= PSF_MAX_BINS + 1
+        assert np.allclose(b["psf"].sum(axis=(1, 2)), 1.0)
+        assert (float(b["psf_bin_px"]) > PSF_BIN_PX) == coarse
+
+
 def test_stroke_saturation_is_reported(tmp_path):
     data = _quick(actuator={"kind": "ideal", "stroke_px": 1.0})
     metrics, _ = run_scenario(parse_scenario(data), tmp_path, rerun=False)

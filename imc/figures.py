@@ -394,16 +394,27 @@ def fig_sweep_heat(out_dir: Path, ds, metric: str, ax_y: str, ax_x: str,
     """A metric over two axes as a heat map (mean over seeds and the remaining axes), one
     panel per value of ``facet`` when given."""
     plt = _plt()
+    import matplotlib.colors
+
     da = ds[metric]
     facets = [None] if facet is None else list(ds[facet].values)
     n = len(facets)
     cols = min(n, 4)
     rows = int(np.ceil(n / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols + 1.2, 3.2 * rows + 0.6),
-                             dpi=110, squeeze=False)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols + 1.2, 3.6 * rows + 0.8),
+                             dpi=110, squeeze=False, gridspec_kw={"hspace": 0.45, "wspace": 0.4})
     vmin, vmax = float(np.nanmin(da.values)), float(np.nanmax(da.values))
     if not np.isfinite(vmin):
         vmin, vmax = 0.0, 1.0
+    # a positive metric over more than a decade (a ratio such as rms_reduction): log colours
+    log = vmin > 0 and vmax / vmin > 10
+    norm = (matplotlib.colors.LogNorm(vmin, vmax) if log
+            else matplotlib.colors.Normalize(vmin, vmax))
+    mid = np.sqrt(vmin * vmax) if log else 0.5 * (vmin + vmax)
+
+    def short(dim: str) -> str:  # the field's last words: panels stay readable
+        return ".".join([p for p in dim.split(".") if not p.isdigit()][-2:])
+
     im = None
     for i, fv in enumerate(facets):
         ax = axes[i // cols][i % cols]
@@ -411,27 +422,29 @@ def fig_sweep_heat(out_dir: Path, ds, metric: str, ax_y: str, ax_x: str,
         rest = [dim for dim in d.dims if dim not in (ax_y, ax_x)]
         grid = d.mean(dim=rest, skipna=True).transpose(ax_y, ax_x).values if rest else (
             d.transpose(ax_y, ax_x).values)
-        im = ax.imshow(grid, origin="lower", aspect="auto", cmap="viridis", vmin=vmin,
-                       vmax=vmax, interpolation="nearest")
+        im = ax.imshow(grid, origin="lower", aspect="auto", cmap="viridis", norm=norm,
+                       interpolation="nearest")
         for (r, c), v in np.ndenumerate(grid):
             if np.isfinite(v):
                 ax.text(c, r, f"{v:.3g}", ha="center", va="center", fontsize=6,
-                        color="w" if v < 0.5 * (vmin + vmax) else "k")
+                        color="w" if v < mid else "k")
         ax.set_xticks(range(grid.shape[1]), [f"{v:.3g}" if _is_numeric([v]) else str(v)
                                              for v in ds[ax_x].values], fontsize=7,
                       rotation=30)
         ax.set_yticks(range(grid.shape[0]), [f"{v:.3g}" if _is_numeric([v]) else str(v)
                                              for v in ds[ax_y].values], fontsize=7)
-        ax.set_xlabel(ax_x, fontsize=7)
-        ax.set_ylabel(ax_y, fontsize=7)
+        ax.set_xlabel(short(ax_x), fontsize=7)
+        ax.set_ylabel(short(ax_y), fontsize=7)
         if fv is not None:
-            ax.set_title(f"{facet} = {fv:.3g}" if _is_numeric([fv]) else f"{facet} = {fv}",
-                         fontsize=8)
+            ax.set_title(f"{short(facet)} = {fv:.3g}" if _is_numeric([fv])
+                         else f"{short(facet)} = {fv}", fontsize=8)
     for j in range(n, rows * cols):
         axes[j // cols][j % cols].axis("off")
     fig.colorbar(im, ax=axes.ravel().tolist(), label=metric, shrink=0.9)
     fig.suptitle(f"{metric} (mean over seeds" + (" and other axes)" if len(
-        [d for d in da.dims if d not in (ax_y, ax_x, facet, "seed")]) else ")"), fontsize=9)
+        [d for d in da.dims if d not in (ax_y, ax_x, facet, "seed")]) else ")")
+        + f"\nrows: {ax_y}; columns: {ax_x}" + (f"; panels: {facet}" if facet else ""),
+        fontsize=9)
     name = f"heat_{_safe(metric)}__{_safe(ax_y)}__{_safe(ax_x)}"
     return save(fig, Path(out_dir) / (name + (f"__by_{_safe(facet)}" if facet else "")
                                       + ".png"))

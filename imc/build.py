@@ -326,6 +326,7 @@ def _correlator_options(sc: Scenario) -> CorrelatorOptions:
         opts = CorrelatorOptions(
             method=c.method, subpixel=c.subpixel, psr_threshold=c.psr_threshold,
             max_crlb_px=c.max_crlb_px, rewindow=c.rewindow,
+            trust_prediction_px=c.trust_prediction_px,
             optical=c.jtoc_model() if c.method == "optical" else None)
         if c.method == "optical":
             OpticalJtc(opts.optical, c.block_px, c.block_px, c.block_px // 4)

@@ -588,6 +588,10 @@ class CorrelatorConfig(_Model):
                                "of a valid measurement, px")
     rewindow: bool = Field(True, description="second pass with windows on the common content "
                            "(about 2x the cost; false: one FFT per block)")
+    trust_prediction_px: float | None = Field(
+        None, gt=0.0, le=64.0, description="start the sub-pixel refinement from the "
+        "orbit/attitude/DEM prediction, skipping the integer search, while prediction and "
+        "measurement agree within this, px (null: always search)")
     optical: OpticalConfig = OpticalConfig()
     timing: TimingConfig = TimingConfig()
     link: LinkConfig = LinkConfig()

@@ -75,6 +75,9 @@ class Trajectory:
         """Exact mean (2,) over [t0, t1] of the interpolated trajectory."""
         t, _ = self.samples
         eps = TIME_EPS * max(1.0, abs(t1_s))
+        if not t1_s - t0_s > eps:  # an instant (an exposure far shorter than TIME_EPS)
+            at = t0_s if self.interpolation == "previous" else 0.5 * (t0_s + t1_s)
+            return self(np.array([at]))[0].copy()
         lo, hi = np.searchsorted(t, [t0_s + eps, t1_s - eps], side="right")
         inside = t[lo:hi]
         inside = inside[inside > t0_s + eps]

@@ -112,8 +112,11 @@ def mutate(rng: random.Random, base: dict) -> tuple[str, str, bool]:
             if isinstance(node, dict):
                 node["unknown_field_x"] = 1
                 return "unknown key", yaml.safe_dump(data), True
-        data[path[0]] = rng.choice([5, [1, 2], "text"])
-        return f"section {path[0]}", yaml.safe_dump(data), True
+        if isinstance(data[path[0]], dict):  # a section (seed, name, duration_s are leaves)
+            data[path[0]] = rng.choice([5, [1, 2], "text"])
+            return f"section {path[0]}", yaml.safe_dump(data), True
+        data[path[0]] = {"x": 1}
+        return f"mapping for {path[0]}", yaml.safe_dump(data), True
     text = yaml.safe_dump(data)
     lines = text.splitlines()
     kind = rng.choice(["tag", "dup", "nest", "bomb", "bigint", "date", "epoch", "longstr",

@@ -128,7 +128,11 @@ def runner(workers: int | None, scheduler: str | None = None,
                 "one with `dask scheduler` and `dask worker ADDRESS --nthreads 1`, or leave "
                 "out --scheduler for a local cluster") from None
         try:
-            client.run(warm_up)
+            try:
+                client.run(warm_up)
+            except ImportError as e:
+                raise SchedulerError(f"the workers of {scheduler} cannot import imcsim ({e}); "
+                                     "install imcsim in each worker's environment") from None
             yield DaskRunner(client, f"Dask scheduler {scheduler}")
         finally:
             client.close()

@@ -749,13 +749,25 @@ def check_params(role: str, kind: str, params: dict) -> None:
             raise ValueError(f"@{key}{bad[0]}@ must be a finite number of magnitude <= "
                              f"{MAX_MAGNITUDE:g} (got {short(bad[1])})")
     try:
-        _adapter(cls).validate_python(dict(params))
+        block = _adapter(cls).validate_python(dict(params))
     except ValidationError as e:
         err = e.errors()[0]
         msg = err["msg"].removeprefix("Value error, ")
         first = msg.split(" ", 1)[0]
         name = ".".join(str(p) for p in err["loc"]) or (first if first in names else "kind")
         raise ValueError(f"@{name}@ {msg}") from None
+    for key in params:  # text such as "1e400" becomes inf in pydantic's lax mode
+        value = getattr(block, key, None)
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            value = dataclasses.asdict(value)
+        elif isinstance(value, list | tuple):
+            value = [dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v for v in value]
+        elif isinstance(value, np.ndarray):
+            value = value.tolist()
+        bad = _bad_number(value)
+        if bad is not None:
+            raise ValueError(f"@{key}{bad[0]}@ must be a finite number of magnitude <= "
+                             f"{MAX_MAGNITUDE:g} (got {short(params[key])})")
 
 
 class BlockConfig(_Model):

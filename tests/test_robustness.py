@@ -495,3 +495,14 @@ def test_an_instantaneous_exposure_is_an_instant_not_nan(tmp_path):
     res = runner.invoke(app, ["validate", str(_write(tmp_path, yaml.safe_dump(data)))])
     assert res.exit_code == 0, res.output
     assert "peak |S|" in res.output and "nan" not in res.output.lower()
+
+
+def test_a_block_parameter_written_as_text_that_reads_as_inf_is_refused(tmp_path):
+    """PyYAML reads 1e400 (no dot) as text, which pydantic's lax mode turns into inf inside a
+    block's parameters (a second fresh fuzz found it): refused, naming the element."""
+    text = (ROOT / "scenarios" / "ikonos_tdi_scan.yaml").read_text()
+    text = text.replace("lines_hz: [4.3, 35.0, 70.0]", "lines_hz: [4.3, 35.0, 1e400]")
+    assert "1e400" in text
+    res = runner.invoke(app, ["validate", str(_write(tmp_path, text))])
+    assert res.exit_code == 2
+    assert "compensation.controller.lines_hz.2: must be a finite number" in res.output

@@ -176,9 +176,8 @@ def test_image_pairs_move_any_image_by_the_stated_shift():
         image_pairs([img[:50, :50]], 2, 64, np.random.default_rng(0))
 
 
-@pytest.mark.skipif("fftw" not in fftbackend.available(), reason="pyfftw not installed")
 def test_fftw_wisdom_file_makes_every_process_use_the_same_plans(tmp_path):
-    """The first process measures its plans and writes the wisdom file; a second process
+    """pyfftw is a dependency of imcsim (pyproject.toml), so this always runs. The first process measures its plans and writes the wisdom file; a second process
     plans from it (measures nothing new, so the file is not rewritten) and gets the same
     shifts bit for bit: a run and its resumed run agree exactly."""
     import os

@@ -642,11 +642,7 @@ def find_lines(t: np.ndarray, z: np.ndarray, f_min_hz: float, snr: float, max_ne
     lines = [float(f) for f in known_hz]
     out: list[float] = []
     for _ in range(max_new):
-        cols = [np.ones_like(tc), tc, tc**2]
-        for f in lines + out:
-            cols += [np.cos(2 * np.pi * f * t), np.sin(2 * np.pi * f * t)]
-        a = np.column_stack(cols)
-        resid = z - a @ np.linalg.lstsq(a, z, rcond=None)[0]
+        resid = _fit_residual(t, tc, z, lines + out)
         freqs, power = _periodogram(t, resid * taper[:, None])
         ok = freqs >= f_min_hz
         for g in lines + out:
@@ -664,16 +660,22 @@ def find_lines(t: np.ndarray, z: np.ndarray, f_min_hz: float, snr: float, max_ne
     return np.array(out)
 
 
+def _fit_residual(t, tc, z, freqs_hz: list[float]) -> np.ndarray:
+    """z (N, 2) less its least-squares fit by a quadratic trend in tc and a sinusoid at each
+    of freqs_hz (Hz, at times t s)."""
+    cols = [np.ones_like(tc), tc, tc**2]
+    for f in freqs_hz:
+        cols += [np.cos(2 * np.pi * f * t), np.sin(2 * np.pi * f * t)]
+    a = np.column_stack(cols)
+    return z - a @ np.linalg.lstsq(a, z, rcond=None)[0]
+
+
 def _refine(t, tc, z, others: list[float], f: float, half_width: float) -> float:
     """The frequency within f +- half_width that leaves the least squared residual of a
     joint least-squares fit (trend, the other lines, this one); golden-section search."""
 
     def cost(g: float) -> float:
-        cols = [np.ones_like(tc), tc, tc**2]
-        for h in [*others, g]:
-            cols += [np.cos(2 * np.pi * h * t), np.sin(2 * np.pi * h * t)]
-        a = np.column_stack(cols)
-        r = z - a @ np.linalg.lstsq(a, z, rcond=None)[0]
+        r = _fit_residual(t, tc, z, [*others, g])
         return float(np.sum(r * r))
 
     lo, hi = f - half_width, f + half_width

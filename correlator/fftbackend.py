@@ -7,13 +7,15 @@ transforms (float32 in, complex64 out, unnormalised forward, 1/n inverse, as ``s
 
 FFTW plans are made once per (transform, batch, shape) and per thread (a plan object carries
 its arrays, so threads do not share one), with ``FFTW_MEASURE``; the wisdom FFTW gathers makes
-each further batch size cheap to plan. The wisdom is kept on disk (:func:`wisdom_path`:
-``IMC_FFTW_WISDOM``, else ``~/.cache/imcsim/``), read at the first plan and written after
-each new one, so every process on a machine picks the same algorithms: a run, the same run
-again and a resumed run compute bit-identical transforms (``FFTW_MEASURE`` alone chooses by
-timing, which differs from process to process in the last bits). Stacks are transformed in
-batches of :data:`BATCH` blocks, so at most ``BATCH`` plans exist per shape and thread. On
-this 2-core machine a 128 x 128 real transform costs 23 us with FFTW and 34-42 us with pocketfft.
+each further batch size cheap to plan. ``FFTW_MEASURE`` alone chooses by timing, which differs
+from process to process in the last bits, so the wisdom is kept on disk (:func:`wisdom_path`:
+``IMC_FFTW_WISDOM``, else ``~/.cache/imcsim/``), read at the first plan and written after each
+new one: once a shape's wisdom is on file, every process on the machine picks the same
+algorithm, and a run, the same run again and a resumed run compute bit-identical transforms
+(two processes measuring the same new shape at once: the last to write wins). Stacks are
+transformed in batches of :data:`BATCH` blocks, so at most ``BATCH`` plans exist per shape and
+thread. On this 2-core machine a 128 x 128 real transform costs 23 us with FFTW and 34-42 us
+with pocketfft.
 
 References
 ----------
@@ -102,12 +104,8 @@ def wisdom_path() -> Path:
     return base / "imcsim" / f"fftw-wisdom-{ver}-{platform.machine()}.npz"
 
 
-def _load_wisdom() -> None:
-    """Merge the wisdom file into this process's wisdom (once; a missing or damaged file is
-    no wisdom)."""
-    if _wisdom["loaded"]:
-        return
-    _wisdom["loaded"] = True
+def _import_wisdom_file() -> None:
+    """Merge the wisdom file into this process's wisdom (a missing or damaged file: none)."""
     try:
         with np.load(wisdom_path()) as f:
             pyfftw.import_wisdom(tuple(f[k].tobytes() for k in ("double", "single", "long")))
@@ -115,15 +113,20 @@ def _load_wisdom() -> None:
         pass
 
 
+def _load_wisdom() -> None:
+    """Merge the wisdom file into this process's wisdom (once; a missing or damaged file is
+    no wisdom)."""
+    if _wisdom["loaded"]:
+        return
+    _wisdom["loaded"] = True
+    _import_wisdom_file()
+
+
 def _save_wisdom() -> None:
     """Write this process's wisdom, merged with the file's, atomically (best effort: a
     read-only cache only costs the cross-process bit identity)."""
     path = wisdom_path()
-    try:
-        with np.load(path) as f:  # another process's newer wisdom
-            pyfftw.import_wisdom(tuple(f[k].tobytes() for k in ("double", "single", "long")))
-    except (OSError, ValueError, KeyError, EOFError):
-        pass
+    _import_wisdom_file()  # another process's newer wisdom
     d, s, lng = pyfftw.export_wisdom()
     try:
         path.parent.mkdir(parents=True, exist_ok=True)

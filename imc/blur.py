@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from compensation.loop import Trajectory
-from compensation.metrics import NYQUIST
+from compensation.metrics import NYQUIST, motion_mtf
 from imc.build import Models
 from imc.io import atomic_write, write_npz
 from imc.truth import Truth
@@ -65,11 +65,12 @@ def window_blur(truth: Truth, trajectory: Trajectory | None) -> dict[str, np.nda
                 truth.t_s[1] - truth.t_s[0])}
 
 
-def write_blur_npz(path: Path, truth: Truth, trajectory: Trajectory) -> dict:
-    """blur.npz: open- and closed-loop PSF and MTF images per exposure; returns the worst
-    exposure's figures."""
-    open_ = window_blur(truth, None)
-    closed = window_blur(truth, trajectory)
+def write_blur_npz(path: Path, truth: Truth, trajectory: Trajectory,
+                   blurs: tuple[dict, dict] | None = None) -> dict:
+    """blur.npz: open- and closed-loop PSF and MTF images per exposure (``blurs``: the two
+    :func:`window_blur` results when the caller has them); returns the worst exposure's
+    figures."""
+    open_, closed = blurs or (window_blur(truth, None), window_blur(truth, trajectory))
     nyq = np.argmin(np.abs(MTF_FREQS - NYQUIST))
     zero = np.argmin(np.abs(MTF_FREQS))
     worst = int(np.argmin(open_["mtf"][:, nyq, zero]))
@@ -168,7 +169,7 @@ def main_imager_study(m: Models, trajectory: Trajectory, truth: Truth, out: Path
                       spp: int = 64, size_px: int = 192) -> dict:
     """Render the main imager's worst exposure (open loop) as a patch of the scene and of a
     slanted edge: static, open and closed loop; measure the edge MTF at Nyquist against the
-    prediction; write main_imager.png and edge_mtf.png."""
+    prediction; write blur.npz and main_imager.png."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -176,7 +177,8 @@ def main_imager_study(m: Models, trajectory: Trajectory, truth: Truth, out: Path
 
     from scene.kernel import Renderer, Sun
 
-    figures = write_blur_npz(out / "blur.npz", truth, trajectory)
+    blurs = {"open_psf": window_blur(truth, None), "closed_psf": window_blur(truth, trajectory)}
+    figures = write_blur_npz(out / "blur.npz", truth, trajectory, tuple(blurs.values()))
     w = figures["worst_window"]
     t0 = figures["worst_window_start_s"]
     t1 = t0 + truth.window_s
@@ -193,10 +195,9 @@ def main_imager_study(m: Models, trajectory: Trajectory, truth: Truth, out: Path
     f_static, mtf_static = curves["static"]
     sel = truth.window == w
     result = {"window_start_s": t0, "window_s": truth.window_s, "spp": spp}
+    motions = {}
     for name, traj in (("open loop", None), ("closed loop", trajectory)):
-        r = truth.residual_px(traj)[sel]
-        motion = np.abs(np.mean(np.exp(-2j * np.pi * f_static[:, None] * r[None, :, 0]),
-                                axis=1))
+        motion = motions[name] = motion_mtf(truth.residual_px(traj)[sel], f_static[:, None])
         f, mtf = curves[name]
         key = name.split()[0]
         result[f"edge_mtf_nyquist_{key}"] = _at(f, mtf, NYQUIST)
@@ -204,7 +205,7 @@ def main_imager_study(m: Models, trajectory: Trajectory, truth: Truth, out: Path
         result[f"motion_mtf_nyquist_{key}"] = _at(f_static, motion, NYQUIST)
     result["edge_mtf_nyquist_static"] = _at(f_static, mtf_static, NYQUIST)
     result["optics_mtf_nyquist"] = float(m.optics.mtf(NYQUIST))
-    result.update({k: v for k, v in figures.items()})
+    result.update(figures)
 
     fig, axes = plt.subplots(2, 3, figsize=(10.5, 7.2), dpi=110)
     for ax, (name, img) in zip(axes[0], patches.items(), strict=True):
@@ -212,20 +213,18 @@ def main_imager_study(m: Models, trajectory: Trajectory, truth: Truth, out: Path
                   vmax=np.percentile(patches["static"], 99))
         ax.set_title(name)
         ax.axis("off")
-    blur = np.load(out / "blur.npz")
     for ax, key, title in ((axes[1][0], "open_psf", "residual PSF, open loop"),
                            (axes[1][1], "closed_psf", "residual PSF, closed loop")):
-        half = 0.5 * blur[key].shape[1] * float(blur[f"{key}_bin_px"])
-        ax.imshow(blur[key][w], cmap="magma", extent=[-half, half, half, -half])
+        psf = blurs[key]["psf"]
+        half = 0.5 * psf.shape[1] * float(blurs[key]["psf_bin_px"])
+        ax.imshow(psf[w], cmap="magma", extent=[-half, half, half, -half])
         ax.set_title(title, fontsize=9)
         ax.set_xlabel("col (px)")
         ax.set_ylabel("row (px)")
     ax = axes[1][2]
     for name, (f, mtf) in curves.items():
         ax.plot(f, mtf, label=f"{name} (edge)")
-    ax.plot(f_static, mtf_static * np.abs(np.mean(np.exp(
-        -2j * np.pi * f_static[:, None] * truth.residual_px(None)[sel][None, :, 0]), axis=1)),
-            "k:", label="predicted, open loop")
+    ax.plot(f_static, mtf_static * motions["open loop"], "k:", label="predicted, open loop")
     ax.axvline(NYQUIST, color="0.7", lw=0.8)
     ax.set_xlim(0, 1)
     ax.set_ylim(0, 1.05)

@@ -15,6 +15,7 @@ on the real terrain before the first frame.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 from dataclasses import dataclass, field
@@ -87,6 +88,7 @@ def _gb(b: float) -> str:
     return f"{b / 1e9:.2f} GB" if b >= 1e8 else f"{b / 1e6:.0f} MB"
 
 
+@functools.cache
 def memory_budget_bytes() -> float:
     """MEMORY_SHARE of the physical memory, or of the cgroup's limit when that is lower."""
     try:

@@ -22,7 +22,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from imc.scenario import ScenarioError, load_scenario
+from imc.scenario import ScenarioError, error_line, load_scenario
 from imc.yamlload import YamlInputError, load_yaml, read_text, short
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
@@ -599,16 +599,19 @@ def _scenario_files(paths: list[Path]) -> list[Path]:
 
     from imc.sweep import is_sweep_file
 
+    def sweep_like(f: Path) -> bool:
+        try:
+            return is_sweep_file(load_yaml(read_text(f)))
+        except YamlInputError:
+            return False  # load_scenario names the problem
+
     found: list[Path] = []
     for p in paths:
         if not p.exists():
             _fail(f"{p}: no such file or folder")
         for f in sorted(p.rglob("*.yaml")) + sorted(p.rglob("*.yml")) if p.is_dir() else [p]:
-            try:
-                sweep_like = is_sweep_file(load_yaml(read_text(f)))
-            except YamlInputError:
-                sweep_like = False  # load_scenario names the problem
-            if not (p.is_dir() and sweep_like) and f not in found:
+            # a file named on the command line is a scenario; in a folder, sweeps are skipped
+            if not (p.is_dir() and sweep_like(f)) and f not in found:
                 found.append(f)
     return found
 
@@ -663,7 +666,7 @@ def check(
                 f, sc = scenarios[int(key)]
                 if isinstance(res, BaseException):
                     res = {"name": sc.name, "source": str(f), "time_s": 0.0,
-                           "error": f"{type(res).__name__}: {res}".splitlines()[0]}
+                           "error": error_line(res)}
                 case = CaseResult(res["name"], res["source"], res["time_s"],
                                   tuple(Outcome(**o) for o in res.get("outcomes", ())),
                                   res.get("error"))

@@ -141,7 +141,7 @@ def check_one(path: str, out_dir: str, report: bool = False) -> dict:
     from imc.htmlreport import EXPECTATIONS, write_run_report
     from imc.io import write_json
     from imc.pipeline import run_scenario
-    from imc.scenario import ScenarioError, load_scenario
+    from imc.scenario import error_line, load_scenario
 
     t0 = time.perf_counter()
     name = Path(path).stem
@@ -150,10 +150,8 @@ def check_one(path: str, out_dir: str, report: bool = False) -> dict:
         name = sc.name
         metrics, _ = run_scenario(sc, Path(out_dir), rerun=False)
     except Exception as e:  # a scenario that cannot run is this test case's error
-        head = (str(e).strip().splitlines() or [""])[0]
-        err = head if isinstance(e, ScenarioError) else f"{type(e).__name__}: {head}"
         return {"name": name, "source": path, "time_s": time.perf_counter() - t0,
-                "error": err}
+                "error": error_line(e)}
     outcomes = [dataclasses.asdict(o) for o in judge(sc.expect, metrics)]
     write_json(Path(out_dir) / EXPECTATIONS, outcomes)
     if report:

@@ -222,11 +222,10 @@ def _tracks(rows: list[dict]) -> dict[str, np.ndarray]:
             "valid": arr("valid").astype(bool), "frame": arr("frame")[:, 0]}
 
 
-def fig_tracker(run_dir: Path, rows: list[dict]) -> Path:
+def fig_tracker(run_dir: Path, tr: dict[str, np.ndarray]) -> Path:
     """Each block's tracking error against its predicted error (CRLB): RMS per block, and the
-    errors over time inside the ±CRLB band."""
+    errors over time inside the ±CRLB band. ``tr``: tracks.csv as arrays (:func:`_tracks`)."""
     plt = _plt()
-    tr = _tracks(rows)
     ok = tr["valid"].copy()
     ok[0] = False  # frame 0 is the reference
     err = tr["meas"] - tr["true"]
@@ -264,14 +263,13 @@ def fig_tracker(run_dir: Path, rows: list[dict]) -> Path:
     return save(fig, Path(run_dir) / "fig_tracker.png")
 
 
-def fig_frame(run_dir: Path, s: dict, rows: list[dict]) -> Path | None:
+def fig_frame(run_dir: Path, s: dict, tr: dict[str, np.ndarray]) -> Path | None:
     """The middle tracker frame with its blocks and each block's track (magnified)."""
     if "frame" not in s:
         return None
     from matplotlib.patches import Rectangle
 
     plt = _plt()
-    tr = _tracks(rows)
     img, b = s["frame"], float(s["block_px"])
     fig, ax = plt.subplots(figsize=(6, 6), dpi=110)
     ax.imshow(img, cmap="gray", interpolation="nearest")
@@ -312,10 +310,11 @@ def run_figures(run_dir: Path) -> list[Figure]:
                            "Where the image spends the worst main-imager exposure, open and "
                            "closed loop (blur.npz)."))
     if rows:
-        figs.append(Figure(fig_tracker(run_dir, rows), "Tracker error vs CRLB",
+        tr = _tracks(rows)
+        figs.append(Figure(fig_tracker(run_dir, tr), "Tracker error vs CRLB",
                            "Each block's error (measured - true shift) against its predicted "
                            "error, the Cramer-Rao bound."))
-        if s is not None and (p := fig_frame(run_dir, s, rows)) is not None:
+        if s is not None and (p := fig_frame(run_dir, s, tr)) is not None:
             figs.append(Figure(p, "Tracker frame", "The middle tracker frame, the blocks "
                                "and each block's measured track, magnified."))
     if (run_dir / "main_imager.png").exists():

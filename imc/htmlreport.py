@@ -128,8 +128,11 @@ def write_sweep_report(sweep_dir: Path) -> Path:
              f", {meta['config']['seeds']} seed(s); {status.size} points: {n_ok} ok, "
              f"{n_err} failed, {n_pend} not run.</p>",
              "<h2>Axes</h2>" + _table(("field", "values", ""), axes_rows)]
-    parts.append(_best_table(sweep_dir, metrics, list(meta["axes"])))
-    errs = _errors(sweep_dir)
+    import pandas as pd
+
+    df = pd.read_parquet(sweep_dir / "results.parquet")
+    parts.append(_best_table(df, metrics, list(meta["axes"])))
+    errs = _errors(df)
     if errs:
         parts.append("<h2>Failed points</h2>" + _table(("point", "error"), errs[:50]))
     parts.extend(_figures_html(sweep_figures(sweep_dir, ds, metrics)))
@@ -139,11 +142,9 @@ def write_sweep_report(sweep_dir: Path) -> Path:
     return out
 
 
-def _best_table(sweep_dir: Path, metrics: Sequence[str], axes: Sequence[str]) -> str:
-    """Per metric, the best and worst point (lowest / highest, over seeds' mean)."""
-    import pandas as pd
-
-    df = pd.read_parquet(sweep_dir / "results.parquet")
+def _best_table(df, metrics: Sequence[str], axes: Sequence[str]) -> str:
+    """Per metric, the best and worst point (lowest / highest, over seeds' mean) of the
+    sweep's tidy table ``df``."""
     ok = df[df["status"] == "ok"]
     rows = []
     for metric in metrics:
@@ -157,9 +158,6 @@ def _best_table(sweep_dir: Path, metrics: Sequence[str], axes: Sequence[str]) ->
     return "<h2>Extremes (mean over seeds)</h2>" + _table(("metric", "", "value", "at"), rows)
 
 
-def _errors(sweep_dir: Path) -> list[tuple[str, str]]:
-    import pandas as pd
-
-    df = pd.read_parquet(sweep_dir / "results.parquet")
+def _errors(df) -> list[tuple[str, str]]:
     bad = df[df["status"] == "error"]
     return [(str(r.point), html.escape(str(r.error))) for r in bad.itertuples()]

@@ -50,7 +50,7 @@ _COLORS = {"true": (220, 60, 50), "estimate": (120, 120, 120), "stage": (240, 16
            "residual": (40, 110, 220)}
 
 
-def blueprint(n_blocks: int, has_frame: bool, has_render: bool):
+def blueprint(n_blocks: int, has_render: bool):
     """The default layout: tracker frame and main imager left, motion and tracker errors in
     the middle, the 3-D views right."""
     import rerun.blueprint as rrb
@@ -235,7 +235,7 @@ def write_recording(path: Path, m: Models, res: LoopResult, truth: Truth,
         t, mo, st = uniform_motion(m, res.trajectory)
         series = {"t_s": t, "motion_px": mo, "stage_px": st}
     has_render = (path.parent / "main_imager.png").exists()
-    bp = blueprint(res.record.shift_px.shape[1], frames is not None, has_render)
+    bp = blueprint(res.record.shift_px.shape[1], has_render)
 
     def write(tmp: Path) -> None:
         rec = rr.RecordingStream(APP_ID, recording_id=m.scenario.name)

@@ -26,6 +26,14 @@ class ScenarioError(ValueError):
     """A scenario file that cannot be used; the message is one line naming the field."""
 
 
+def error_line(e: BaseException) -> str:
+    """One line for an exception: a ScenarioError's own message, else the type and the
+    message's first line (a point or scenario that could not run)."""
+    text = str(e).strip().splitlines()
+    head = text[0] if text else ""
+    return head if isinstance(e, ScenarioError) else f"{type(e).__name__}: {head}".rstrip(": ")
+
+
 #: largest magnitude of any number in a scenario (products of a few stay far from overflow)
 MAX_MAGNITUDE = 1e12
 #: the epochs imcsim can propagate: its orbit, sun and time models count nanoseconds in
@@ -50,6 +58,13 @@ def _expects_number(annotation) -> bool:
                if isinstance(a, type) or typing.get_args(a))
 
 
+def _bool_at(value) -> int | None:
+    """Index of the first true / false in ``value`` (a list or tuple, or 0 for a bare
+    bool); None when there is none."""
+    items = value if isinstance(value, list | tuple) else (value,)
+    return next((i for i, x in enumerate(items) if isinstance(x, bool)), None)
+
+
 class _Model(BaseModel):
     """Every section: unknown keys are errors, and every float is finite (no NaN, no inf)
     and of magnitude <= MAX_MAGNITUDE; true / false is not a number."""
@@ -59,8 +74,7 @@ class _Model(BaseModel):
     @field_validator("*", mode="before")
     @classmethod
     def _no_bool_numbers(cls, v, info):
-        items = v if isinstance(v, list | tuple) else (v,)
-        at = next((i for i, x in enumerate(items) if isinstance(x, bool)), None)
+        at = _bool_at(v)
         if at is not None:
             field = cls.model_fields.get(info.field_name)
             if field is not None and _expects_number(field.annotation):
@@ -736,8 +750,7 @@ def check_params(role: str, kind: str, params: dict) -> None:
             raise ValueError(f"@{short(key, 40)}@ unknown parameter of {role} kind {kind!r} "
                              f"(allowed: {allowed})")
         if _expects_number(hints.get(key)):
-            items = value if isinstance(value, list | tuple) else (value,)
-            at = next((i for i, x in enumerate(items) if isinstance(x, bool)), None)
+            at = _bool_at(value)
             if at is not None:
                 where = f"{key}.{at}" if isinstance(value, list | tuple) else key
                 raise ValueError(f"@{where}@ give a number, not true / false")

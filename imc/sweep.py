@@ -48,6 +48,7 @@ from imc.scenario import (
     ScenarioError,
     _check_metric_path,
     _format_validation_error,
+    error_line,
     load_scenario,
     parse_scenario,
 )
@@ -304,12 +305,6 @@ def is_sweep_file(data: object) -> bool:
 # ------------------------------------------------------------------------------ running
 
 
-def _one_line(e: BaseException) -> str:
-    text = str(e).strip().splitlines()
-    head = text[0] if text else ""
-    return head if isinstance(e, ScenarioError) else f"{type(e).__name__}: {head}".rstrip(": ")
-
-
 def run_point(scenario: dict, work_dir: str, keep: bool) -> dict:
     """Run one point (on a worker): its metrics, or its one-line error and traceback. The run
     folder (its checkpoint lets a point in flight resume) is removed unless ``keep``."""
@@ -323,7 +318,7 @@ def run_point(scenario: dict, work_dir: str, keep: bool) -> dict:
                                      warn=warnings.append)
         out.update(status="ok", metrics=metrics, run_wall_s=info["wall_s"])
     except Exception as e:  # a point that fails is a result; the sweep goes on
-        out.update(status="error", error=_one_line(e), traceback=traceback.format_exc())
+        out.update(status="error", error=error_line(e), traceback=traceback.format_exc())
     finally:
         if not keep:
             shutil.rmtree(work_dir, ignore_errors=True)
@@ -397,7 +392,7 @@ def run_sweep(sweep: Sweep, out_dir: Path, runner: Runner, progress: ProgressFn 
             summary.lost.append(f"point {p.index}: {res}")
             continue
         if isinstance(res, BaseException):  # raised outside run_point's guard
-            res = {"status": "error", "error": _one_line(res)}
+            res = {"status": "error", "error": error_line(res)}
         rec = {"digest": p.digest, "index": p.index, "coords": p.coords,
                "finished_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"), **res}
         write_json(point_path(out_dir, p.digest), rec)

@@ -177,9 +177,10 @@ def test_image_pairs_move_any_image_by_the_stated_shift():
 
 
 def test_fftw_wisdom_file_makes_every_process_use_the_same_plans(tmp_path):
-    """pyfftw is a dependency of imcsim (pyproject.toml), so this always runs. The first process measures its plans and writes the wisdom file; a second process
-    plans from it (measures nothing new, so the file is not rewritten) and gets the same
-    shifts bit for bit: a run and its resumed run agree exactly."""
+    """pyfftw is a dependency of imcsim (pyproject.toml), so this always runs. The first
+    process measures its plans and writes the wisdom file; a second process plans from it
+    (measures nothing new, so the file is not rewritten) and gets the same shifts bit for
+    bit: a run and its resumed run agree exactly."""
     import os
     import subprocess
     import sys

@@ -243,12 +243,14 @@ def test_validate_prints_the_estimate_and_stays_light():
     assert est.parts["terrain"] > 1.5e9  # the 4800^2 procedural tile of the run
 
 
-@pytest.mark.parametrize("fidelity", ["rendered", "texture", "analytic"])
-def test_estimate_bounds_a_measured_run(tmp_path, fidelity):
+@pytest.mark.parametrize("fidelity, blur_images", [("rendered", True), ("texture", True),
+                                                   ("analytic", True), ("analytic", False)])
+def test_estimate_bounds_a_measured_run(tmp_path, fidelity, blur_images):
     """The estimate is an upper-end figure: at least the measured peak of a small run (and
-    not wildly above it)."""
+    not wildly above it), with and without the main imager's rendered blur images."""
     data = _quickstart(duration_s=0.1, **{"camera.tracker.rows": 128, "plant.fidelity": fidelity,
                                           "camera.main_imager.start_s": 0.0,
+                                          "metrics.blur_images": blur_images,
                                           "camera.tracker.cols": 128, "scene.size_m": 256})
     data.pop("expect", None)  # the quickstart's bounds are for its own run
     p = _write(tmp_path, yaml.safe_dump(data))

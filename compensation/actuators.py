@@ -177,6 +177,7 @@ class PiezoState:
     x: np.ndarray  # mode position (2,)
     v: np.ndarray  # mode velocity (2,)
     saturated_ticks: int
+    shaper: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))  # drive notch (2, 2)
 
 
 @register("actuator", "piezo")
@@ -193,6 +194,17 @@ class PiezoStage:
     (``resonance_hz``, ``damping``), integrated exactly over each tick; ``cross_coupling``
     moves each axis by that fraction of the other.
 
+    ``drive_notch_hz`` (None: off) is the drive electronics' notch, a pole-zero filter
+    running at the DAC rate in front of the DAC, as digital piezo controllers have: its zeros
+    cancel the mode as identified (``drive_notch_hz``, ``drive_notch_damping``, default the
+    stage's own damping: give other values to model an identification error) and its poles
+    put a well-damped mode in its place (``drive_target_hz``, default 3 x drive_notch_hz;
+    ``drive_target_damping``). The loop then sees a faster, damped stage; a 1 kHz loop's
+    notch (controller ``notch``) cannot do this, since it acts below the loop's Nyquist
+    frequency and adds its phase lag at the crossover. The filter boosts the drive above the
+    mode (up to (target / notch)^2): the stroke (the DAC's range) and a slew limit then clip
+    the shaped drive, and a clipped tick counts as saturated.
+
     A command acts from the first tick at or after its time, so choose ``update_hz`` a
     multiple of the tracker's frame rate (None: the wiring picks the smallest multiple of
     the frame rate at or above 20 x resonance_hz).
@@ -207,6 +219,10 @@ class PiezoStage:
     creep_pct_per_decade: float = 0.0
     dac_bits: int | None = 16
     cross_coupling: float = 0.0
+    drive_notch_hz: float | None = None
+    drive_notch_damping: float | None = None
+    drive_target_hz: float | None = None
+    drive_target_damping: float = 0.7
     kind: str = field(default="piezo", init=False)
     interpolation: str = field(default="linear", init=False)
 
@@ -232,6 +248,24 @@ class PiezoStage:
         if self.update_hz is not None and self.update_hz < 8.0 * self.resonance_hz:
             raise ValueError(f"update_hz ({self.update_hz:g}) must be >= 8 x resonance_hz "
                              f"({self.resonance_hz:g}) to integrate the mode")
+        if self.drive_notch_hz is None:
+            for name in ("drive_notch_damping", "drive_target_hz"):
+                if getattr(self, name) is not None:
+                    raise ValueError(f"{name} shapes the drive notch: give drive_notch_hz "
+                                     "too")
+            return
+        notch = (("drive_notch_hz", self.drive_notch_hz > 0),
+                 ("drive_notch_damping", self.drive_notch_damping is None
+                  or 0 < self.drive_notch_damping < 1),
+                 ("drive_target_hz", self.drive_target_hz is None or self.drive_target_hz > 0),
+                 ("drive_target_damping", 0 < self.drive_target_damping <= 2))
+        for name, ok in notch:
+            if not ok:
+                raise ValueError(f"{name} out of range: {getattr(self, name)}")
+        top = max(self.drive_notch_hz, self.target_hz)
+        if self.update_hz is not None and self.update_hz < 4.0 * top:
+            raise ValueError(f"update_hz ({self.update_hz:g}) must be >= 4 x the drive "
+                             f"notch's frequencies ({top:g} Hz) to place them")
 
     # -- derived constants -----------------------------------------------------------------
     @property
@@ -275,8 +309,44 @@ class PiezoStage:
         return 0.5 * (lo + hi), beta
 
     @property
+    def target_hz(self) -> float:
+        """The drive notch's new mode, Hz (3 x drive_notch_hz unless given)."""
+        if self.drive_notch_hz is None:
+            return self.resonance_hz
+        return self.drive_target_hz or 3.0 * self.drive_notch_hz
+
+    @cached_property
+    def _shaper(self) -> tuple[np.ndarray, np.ndarray] | None:
+        return self._shaper_coefficients()
+
+    def _shaper_coefficients(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(b, a) in z^-1 of the drive notch at the DAC rate, unity gain at DC: zeros at the
+        identified mode's poles mapped exactly (z = exp(s dt), as the mode's zero-order-hold
+        discretisation has them), poles at the target mode's; None when off."""
+        if self.drive_notch_hz is None:
+            return None
+
+        def poly(f_hz: float, zeta: float) -> np.ndarray:
+            w = 2.0 * np.pi * f_hz
+            root = np.exp((-zeta * w + 1j * w * np.sqrt(max(1.0 - zeta * zeta, 0.0)))
+                          * self.dt_s)
+            if zeta >= 1.0:  # two real poles
+                r1 = np.exp((-zeta + np.sqrt(zeta * zeta - 1.0)) * w * self.dt_s)
+                r2 = np.exp((-zeta - np.sqrt(zeta * zeta - 1.0)) * w * self.dt_s)
+                return np.array([1.0, -(r1 + r2), r1 * r2])
+            return np.array([1.0, -2.0 * root.real, abs(root) ** 2])
+
+        zeta = self.damping if self.drive_notch_damping is None else self.drive_notch_damping
+        b = poly(self.drive_notch_hz, zeta)
+        a = poly(self.target_hz, self.drive_target_damping)
+        return b * (a.sum() / b.sum()), a
+
+    @property
     def lag_s(self) -> float:
-        """Low-frequency group delay of the mode (2 zeta / omega_n), s."""
+        """Low-frequency group delay of the mode (2 zeta / omega_n; with the drive notch, of
+        the target mode it puts in the mode's place), s."""
+        if self.drive_notch_hz is not None:
+            return 2.0 * self.drive_target_damping / (2.0 * np.pi * self.target_hz)
         return 2.0 * self.damping / (2.0 * np.pi * self.resonance_hz)
 
     def command_model(self) -> IdealStage:
@@ -292,7 +362,7 @@ class PiezoStage:
     def init(self, t0_s: float = 0.0) -> PiezoState:
         z2 = np.zeros(2)
         return PiezoState(int(round(t0_s / self.dt_s)), z2, z2, z2,
-                          np.zeros((2, len(CREEP_TAUS_S))), z2, z2, 0)
+                          np.zeros((2, len(CREEP_TAUS_S))), z2, z2, 0, np.zeros((2, 2)))
 
     def clip(self, u_px: np.ndarray) -> np.ndarray:
         """The command the stage can follow (clipped to the stroke), px."""
@@ -310,18 +380,30 @@ class PiezoStage:
         ad, bd = self._mode
         alpha, beta = self._hysteresis
         u, sat = _stroke_limit(state.u_cmd, self.stroke_px)
-        if self.dac_bits is not None:
-            q = self.stroke_px / 2.0**self.dac_bits
+        q = None if self.dac_bits is None else self.stroke_px / 2.0**self.dac_bits
+        shaper = self._shaper
+        if q is not None and shaper is None:
             u = np.round(u / q) * q
+        sh = state.shaper.copy()
         slew = np.inf if self.slew_px_s is None else self.slew_px_s * self.dt_s
         gamma = self.creep_pct_per_decade / 100.0
         decay = np.exp(-self.dt_s / np.array(CREEP_TAUS_S))
         gain = 1.0 / (1.0 - 2.0 * alpha / (2.0 * beta) / self.stroke_px) if alpha else 1.0
         out = np.empty((n, 2))
+        sat_ticks = n if sat else 0
         drive, hyst = state.drive.copy(), state.hyst.copy()
         creep, x, v = state.creep.copy(), state.x.copy(), state.v.copy()
         for i in range(n):
-            step = np.clip(u - drive, -slew, slew)
+            dac = u
+            if shaper is not None:  # transposed direct form II, per axis; then the DAC
+                (b0, b1, b2), (_, a1, a2) = shaper
+                shaped = b0 * u + sh[:, 0]
+                sh = np.stack([b1 * u - a1 * shaped + sh[:, 1], b2 * u - a2 * shaped], axis=1)
+                dac, clipped = _stroke_limit(shaped, self.stroke_px)  # the DAC's range
+                sat_ticks += int(clipped and not sat)
+                if q is not None:
+                    dac = np.round(dac / q) * q
+            step = np.clip(dac - drive, -slew, slew)
             if alpha:
                 hyst = _bouc_wen_step(hyst, step, alpha, beta)
             drive = drive + step
@@ -337,7 +419,7 @@ class PiezoStage:
             out = out + self.cross_coupling * out[:, ::-1]
         times = (state.tick + 1 + np.arange(n)) / self.update_hz
         new = PiezoState(n_to, state.u_cmd, drive, hyst, creep, x, v,
-                         state.saturated_ticks + (n if sat else 0))
+                         state.saturated_ticks + sat_ticks, sh)
         return new, times, out
 
     def saturated_s(self, state: PiezoState) -> float:

@@ -61,6 +61,7 @@ def main() -> None:
         s = tm.summary(TOLERANCE)
         rows[kind] = {**s, "error_px": tm.error_px.tolist(),
                       "predicted_px": tm.predicted_px.tolist(), "bound_px": tm.bound_px.tolist(),
+                      "corr_bound_px": tm.corr_bound_px.tolist(),
                       "success": tm.success.tolist(), "wrong": tm.wrong.tolist()}
         plot_map(tm, out / f"{name}_{kind}.png", f"{name}, {kind}")
         print(f"{kind:17s}: mean {s['mean_px']:.4f} px (paper {PAPER_ERROR_PX['mean']}, target "
@@ -70,7 +71,10 @@ def main() -> None:
               f"{s['within_predicted']} of {s['measured_blocks']} measured blocks within "
               f"{TOLERANCE:.0%} ({s['blocks']} in all); / clean bound "
               f"{s['bound_ratio_min']:.2f} .. {s['bound_ratio_max']:.2f} (median "
-              f"{s['bound_ratio_median']:.2f}), {s['within_bound']} within; trials "
+              f"{s['bound_ratio_median']:.2f}), {s['within_bound']} within; correlation "
+              f"bound mean {s['corr_bound_mean_px']:.4f} px, measured / it "
+              f"{s['corr_bound_ratio_min']:.2f} .. {s['corr_bound_ratio_max']:.2f} (median "
+              f"{s['corr_bound_ratio_median']:.2f}); trials "
               f"successful {100 * s['success_fraction']:.1f} %, wrong "
               f"{100 * s['wrong_fraction']:.2f} %", flush=True)
     wall = time.perf_counter() - t0

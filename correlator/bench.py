@@ -40,7 +40,13 @@ from threadpoolctl import threadpool_limits
 
 from correlator import fftbackend
 from correlator.core import Correlator, measure_shift
-from correlator.testimages import MEAN_LEVEL, crlb_px, image_pairs, texture_pairs
+from correlator.testimages import (
+    MEAN_LEVEL,
+    correlation_bound_px,
+    crlb_px,
+    image_pairs,
+    texture_pairs,
+)
 
 Estimator = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
@@ -112,8 +118,10 @@ def peers(threads: int = 1, hann: bool | None = None) -> dict[str, Estimator]:
     return out
 
 
-def score(shift, valid, d, crlb) -> dict:
-    """Success, false-valid, RMS, bias and RMS/CRLB of one estimator on one set of pairs."""
+def score(shift, valid, d, crlb, corr_bound=None) -> dict:
+    """Success, false-valid, RMS, bias, RMS/CRLB and RMS / correlation bound (the least a
+    correlation estimator reaches, :func:`correlation_bound_px`) of one estimator on one set
+    of pairs."""
     err = shift - d
     ok = valid & np.all(np.abs(err) < 0.5, axis=1)
     out = {"success_pct": 100.0 * ok.mean(), "false_valid_pct": 100.0 * (valid & ~ok).mean()}
@@ -123,8 +131,12 @@ def score(shift, valid, d, crlb) -> dict:
                    bias_px=float(np.abs(err[ok].mean(axis=0)).max()),
                    rms_over_crlb=float(np.sqrt(np.mean(rms**2))
                                        / np.sqrt(np.mean(crlb[ok] ** 2))))
+        if corr_bound is not None:
+            out["rms_over_corr_bound"] = float(np.sqrt(np.mean(rms**2))
+                                               / np.sqrt(np.mean(corr_bound[ok] ** 2)))
     else:
-        out.update(rms_px=float("nan"), bias_px=float("nan"), rms_over_crlb=float("nan"))
+        out.update(rms_px=float("nan"), bias_px=float("nan"), rms_over_crlb=float("nan"),
+                   rms_over_corr_bound=float("nan"))
     return out, ok
 
 
@@ -140,6 +152,7 @@ def method_table(n: int, block_px: int, snr: float, texture: str, rng, with_peer
     ref, cur, d, clean = texture_pairs(n, block_px, rng, snr=snr, texture=texture,
                                        return_clean=True)
     crlb = crlb_px(clean, MEAN_LEVEL / snr)
+    corr = correlation_bound_px(clean, MEAN_LEVEL / snr)
     rows_in = {
         "imcsim jtc + fourier (precise)": ours(),
         "imcsim jtc + fourier (1 FFT/block)": ours(rewindow=False),
@@ -154,7 +167,7 @@ def method_table(n: int, block_px: int, snr: float, texture: str, rng, with_peer
     rows, oks = [], []
     for name, fn in rows_in.items():
         shift, valid, rate = timed(fn, ref, cur)
-        sc, ok = score(shift, valid, d, crlb)
+        sc, ok = score(shift, valid, d, crlb, corr)
         rows.append({"estimator": name, "pairs_per_s": rate, **sc, "_err": shift - d})
         oks.append(ok)
     common = np.all(oks, axis=0)
@@ -163,6 +176,7 @@ def method_table(n: int, block_px: int, snr: float, texture: str, rng, with_peer
         row["rms_common_px"] = float(np.sqrt(np.mean(e**2))) if common.any() else float("nan")
     return rows, {"block_px": block_px, "snr": snr, "texture": texture, "pairs": n,
                   "crlb_px": float(np.sqrt(np.mean(crlb**2))),
+                  "corr_bound_px": float(np.sqrt(np.mean(corr**2))),
                   "common_pairs": int(common.sum())}
 
 
@@ -299,6 +313,7 @@ def natural_tables(n: int, rng, block_px: int = 128) -> dict:
     ref, cur, d, clean = image_pairs(_photos(TEXTURED_PHOTOS), n, block_px, rng, snr=1.6,
                                      return_clean=True)
     bound = float(np.sqrt(np.mean(crlb_px(clean, MEAN_LEVEL / 1.6) ** 2)))
+    corr = float(np.sqrt(np.mean(correlation_bound_px(clean, MEAN_LEVEL / 1.6) ** 2)))
     est = {"imcsim (default, precise)": ours(), "imcsim 1 FFT/block": ours(rewindow=False),
            **peers(1, hann=None)}
     snr16 = []
@@ -309,7 +324,7 @@ def natural_tables(n: int, rng, block_px: int = 128) -> dict:
                       "valid_pct": 100.0 * float(valid.mean()),
                       "outliers": int((np.abs(err).max(axis=1) >= 0.5).sum())})
     return {"coverage": cover, "snr16": snr16, "pairs": n, "photos": PHOTOS,
-            "textured": TEXTURED_PHOTOS, "snr16_crlb_px": bound}
+            "textured": TEXTURED_PHOTOS, "snr16_crlb_px": bound, "snr16_corr_bound_px": corr}
 
 
 def markdown(results: dict) -> str:
@@ -318,11 +333,14 @@ def markdown(results: dict) -> str:
     for tab in results["method_tables"]:
         m = tab["meta"]
         lines += [f"### {m['block_px']}x{m['block_px']}, SNR {m['snr']:g}, {m['texture']} "
-                  f"texture, {m['pairs']} pairs within +-4 px (CRLB {m['crlb_px']:.4f} px)", "",
-                  "| estimator | RMS (px) | RMS/CRLB | RMS on common pairs | success | "
-                  "false-valid | bias (px) | pairs/s |", "|---|---|---|---|---|---|---|---|"]
+                  f"texture, {m['pairs']} pairs within +-4 px (CRLB {m['crlb_px']:.4f} px, "
+                  f"correlation bound {m.get('corr_bound_px', float('nan')):.4f} px)", "",
+                  "| estimator | RMS (px) | RMS/CRLB | RMS / corr. bound | RMS on common pairs "
+                  "| success | false-valid | bias (px) | pairs/s |",
+                  "|---|---|---|---|---|---|---|---|---|"]
         for r in tab["rows"]:
             lines.append(f"| {r['estimator']} | {r['rms_px']:.4f} | {r['rms_over_crlb']:.2f} | "
+                         f"{r.get('rms_over_corr_bound', float('nan')):.2f} | "
                          f"{r['rms_common_px']:.4f} | {r['success_pct']:.1f} % | "
                          f"{r['false_valid_pct']:.1f} % | {r['bias_px']:.4f} | "
                          f"{r['pairs_per_s']:.0f} |")
@@ -342,7 +360,9 @@ def markdown(results: dict) -> str:
             lines.append(f"| {r['estimator']} | {r['within_pct']:.1f} % | {r['valid_pct']:.1f} % "
                          f"| {r['valid_within_pct']:.1f} % | {r['false_valid_pct']:.2f} % |")
         lines += ["", f"### Textured photographs ({', '.join(nat['textured'])}, own contrast), "
-                      f"SNR 1.6: error over all pairs (CRLB {nat['snr16_crlb_px']:.4f} px)", "",
+                      f"SNR 1.6: error over all pairs (CRLB {nat['snr16_crlb_px']:.4f} px, "
+                      f"correlation bound {nat.get('snr16_corr_bound_px', float('nan')):.4f} px)",
+                  "",
                   "| estimator | RMS over all pairs (px) | flagged valid | errors >= 0.5 px |",
                   "|---|---|---|---|"]
         for r in nat["snr16"]:

@@ -42,6 +42,7 @@ import scipy.fft as sfft
 from camera.geometry import FocalPlane
 from camera.motion import CameraModel
 from correlator.core import measure_shift
+from correlator.testimages import correlation_bound_px, crlb_px
 from imc import streams
 from orbit.aircraft import Aircraft, AircraftAttitude
 from orbit.frames import LocalFrame
@@ -117,6 +118,7 @@ class BlockResult:
     bound: np.ndarray
     noise_sigma: float
     success_px: float = 0.5
+    corr_bound: np.ndarray | None = None  # (N, 2) px: correlation_bound_px of each pair
 
     @property
     def success(self) -> np.ndarray:
@@ -151,30 +153,12 @@ class BlockResult:
         """RMS of the trials' clean-texture bounds, per axis."""
         return float(np.sqrt(np.mean(self.bound**2)))
 
-
-def band_limited_gradients(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """d/drow, d/dcol (..., H, W) of images by the spectral derivative of their mirror
-    extension (continuous, so no wrap edge; exact for band-limited content)."""
-    x = np.concatenate([img, img[..., ::-1, :]], axis=-2)
-    x = np.concatenate([x, x[..., ::-1]], axis=-1)
-    h, w = x.shape[-2:]
-    spec = sfft.rfft2(x, axes=(-2, -1), workers=-1)
-    fy = 2j * np.pi * sfft.fftfreq(h)[:, None]
-    fx = 2j * np.pi * sfft.rfftfreq(w)[None, :]
-    hh, ww = img.shape[-2:]
-    gy = sfft.irfft2(spec * fy, s=(h, w), axes=(-2, -1), workers=-1)[..., :hh, :ww]
-    gx = sfft.irfft2(spec * fx, s=(h, w), axes=(-2, -1), workers=-1)[..., :hh, :ww]
-    return gy, gx
-
-
-def shift_crlb_px(clean: np.ndarray, sigma: float) -> np.ndarray:
-    """Cramer-Rao bound (N, 2) px of the shift between two copies of clean blocks (N, H, W),
-    each with white noise of sigma: sqrt(diag(2 sigma^2 (sum g g^T)^-1))."""
-    gy, gx = band_limited_gradients(np.asarray(clean, dtype=np.float64))
-    a11, a22 = (gy * gy).sum(axis=(-2, -1)), (gx * gx).sum(axis=(-2, -1))
-    a12 = (gy * gx).sum(axis=(-2, -1))
-    det = a11 * a22 - a12 * a12
-    return np.sqrt(2.0 * sigma**2 * np.stack([a22 / det, a11 / det], axis=-1))
+    def corr_bound_px(self) -> float:
+        """RMS of the trials' correlation bounds (the least error a correlation estimator
+        reaches at this noise), per axis; NaN when not computed."""
+        if self.corr_bound is None:
+            return float("nan")
+        return float(np.sqrt(np.mean(self.corr_bound**2)))
 
 
 def motion_blur(blocks: np.ndarray, length_px: np.ndarray, angle_rad: np.ndarray) -> np.ndarray:
@@ -309,12 +293,13 @@ def run_block(sr: SceneRenderer, i: int, j: int, levels: dict[str, tuple[float, 
         cur = np.stack([coarse[2 + p][m0 - dr:m0 - dr + side, m0 - dc:m0 - dc + side]
                         for (dr, dc), p in zip(shifts, which, strict=True)])
         ref, cur = motion_blur(ref, blur, angle)[inner], motion_blur(cur, blur, angle)[inner]
-        crlb = shift_crlb_px(ref, sigma)
+        crlb = crlb_px(ref, sigma)
+        corr = correlation_bound_px(ref, sigma)
         expose = [np.clip(np.rint(x + e), 0, 255).astype(np.float32)
                   for x, e in zip((ref, cur), noise, strict=True)]
         res = measure_shift(*expose, max_crlb_px=c.max_crlb_px)
         out[name] = BlockResult(res.shift - truth, res.valid, res.crlb, crlb, sigma,
-                                c.success_px)
+                                c.success_px, corr)
     return out
 
 
@@ -335,6 +320,7 @@ class TextureMap:
     overview: np.ndarray
     render_s: float
     correlate_s: float
+    corr_bound_px: np.ndarray | None = None
 
     @property
     def ratio(self) -> np.ndarray:
@@ -362,9 +348,21 @@ class TextureMap:
             "bound_ratio_min": float(np.nanmin(rb)), "bound_ratio_median":
             float(np.nanmedian(rb)), "bound_ratio_max": float(np.nanmax(rb)),
             "within_bound": within(self.bound_px), "tolerance": tolerance,
+            **self._corr_summary(),
             "success_fraction": float(np.mean(self.success)),
             "wrong_fraction": float(np.mean(self.wrong)),
             "noise_sigma_mean": float(np.nanmean(self.noise_sigma)), "paper_px": PAPER_ERROR_PX}
+
+
+    def _corr_summary(self) -> dict:
+        """The correlation bound's mean and the measured error against it."""
+        if self.corr_bound_px is None:
+            return {}
+        rc = self.error_px / self.corr_bound_px
+        return {"corr_bound_mean_px": float(np.nanmean(self.corr_bound_px)),
+                "corr_bound_ratio_min": float(np.nanmin(rc)),
+                "corr_bound_ratio_median": float(np.nanmedian(rc)),
+                "corr_bound_ratio_max": float(np.nanmax(rc))}
 
 
 def grey_levels(overview: np.ndarray, levels: tuple[float, float]) -> tuple[float, float]:
@@ -388,7 +386,7 @@ def run_map(terrain: Terrain, cfg: TextureMapConfig = TextureMapConfig(), seed: 
     over = sr.overview()
     levels = {name: grey_levels(over, lv) for name, _, lv in cfg.variants}
     g = cfg.grid
-    keys = ("error", "predicted", "bound", "success", "wrong", "sigma")
+    keys = ("error", "predicted", "bound", "success", "wrong", "sigma", "corr_bound")
     maps = {name: {k: np.full((g, g), np.nan) for k in keys} for name in levels}
     t_corr = 0.0
     for i in range(g):
@@ -399,7 +397,7 @@ def run_map(terrain: Terrain, cfg: TextureMapConfig = TextureMapConfig(), seed: 
             t_corr += time.perf_counter() - t0 - (sr.render_s - r0)
             for name, r in res.items():
                 vals = (r.error_px(), r.predicted_px(), r.bound_px(), r.success.mean(),
-                        r.wrong, r.noise_sigma)
+                        r.wrong, r.noise_sigma, r.corr_bound_px())
                 for k, v in zip(keys, vals, strict=True):
                     maps[name][k][i, j] = v
         if log:
@@ -409,7 +407,8 @@ def run_map(terrain: Terrain, cfg: TextureMapConfig = TextureMapConfig(), seed: 
                 for name, mp in maps.items()))
     grey = {name: np.clip(over * lv[0] + lv[1], 0, 255) for name, lv in levels.items()}
     return {name: TextureMap(mp["error"], mp["predicted"], mp["bound"], mp["success"],
-                             mp["wrong"], mp["sigma"], grey[name], sr.render_s, t_corr)
+                             mp["wrong"], mp["sigma"], grey[name], sr.render_s, t_corr,
+                             mp["corr_bound"])
             for name, mp in maps.items()}
 
 

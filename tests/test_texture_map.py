@@ -7,13 +7,14 @@ import numpy as np
 import pytest
 import scipy.fft as sfft
 
+from correlator.testimages import correlation_bound_px
+from correlator.testimages import crlb_px as shift_crlb_px
 from imc.texture_map import (
     TextureMapConfig,
     bin_fine,
     motion_blur,
     resample_bandlimited,
     run_map,
-    shift_crlb_px,
 )
 from scene.terrain import fractal_noise
 
@@ -30,6 +31,20 @@ def test_bound_of_a_sinusoid_is_the_analytic_one():
     expected = np.sqrt(2.0 * sigma**2 / (n * n * (2 * np.pi * f * a) ** 2 / 2.0))
     assert got[1] == pytest.approx(expected, rel=0.01)
     assert got[0] > 20 * got[1]
+
+
+def test_correlation_bound_counts_the_noise_x_noise_term():
+    """A sinusoid of a whole number of cycles puts |S|^2 = (A N / 2)^2 in each of its two
+    bins: where that is far above sigma^2 the correlation bound is the Cramer-Rao bound;
+    where 2 |S|^2 = sigma^2 it is sqrt(1 + sigma^2 / (2 |S|^2)) = sqrt 2 times it."""
+    n, f, sigma = 128, 17 / 128, 20.0
+    x = np.arange(n)
+    for amp, ratio in ((30.0, 1.0), (2 * np.sqrt(sigma**2 / 2) / n, np.sqrt(2.0))):
+        img = np.broadcast_to(amp * np.sin(2 * np.pi * f * x + 0.4), (n, n)).copy()
+        img += 5.0 * np.sin(2 * np.pi * 0.05 * x)[:, None]
+        crlb = shift_crlb_px(img[None], sigma)[0]
+        got = correlation_bound_px(img[None], sigma)[0]
+        assert got[1] / crlb[1] == pytest.approx(ratio, rel=0.02)
 
 
 def _field(rng, n: int = 480) -> np.ndarray:

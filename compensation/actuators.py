@@ -199,15 +199,15 @@ class PiezoStage:
     cancel the mode as identified (``drive_notch_hz``, ``drive_notch_damping``, default the
     stage's own damping: give other values to model an identification error) and its poles
     put a well-damped mode in its place (``drive_target_hz``, default 3 x drive_notch_hz;
-    ``drive_target_damping``). The loop then sees a faster, damped stage; a 1 kHz loop's
-    notch (controller ``notch``) cannot do this, since it acts below the loop's Nyquist
-    frequency and adds its phase lag at the crossover. The filter boosts the drive above the
-    mode (up to (target / notch)^2): the stroke (the DAC's range) and a slew limit then clip
-    the shaped drive, and a clipped tick counts as saturated.
+    ``drive_target_damping``, default 0.7). The loop then sees a faster, damped stage; a
+    1 kHz loop's notch (controller ``notch``) cannot do this, since it acts below the loop's
+    Nyquist frequency and adds its phase lag at the crossover. The filter boosts the drive above the
+    mode (up to (target / notch)^2): the stroke (the DAC's range) clips the shaped drive, and a
+    clipped tick counts as saturated; a slew limit then limits it too (not counted).
 
     A command acts from the first tick at or after its time, so choose ``update_hz`` a
     multiple of the tracker's frame rate (None: the wiring picks the smallest multiple of
-    the frame rate at or above 20 x resonance_hz).
+    the frame rate at or above 20 x resonance_hz and 4 x the drive notch's frequencies).
     """
 
     update_hz: float | None = None
@@ -222,7 +222,7 @@ class PiezoStage:
     drive_notch_hz: float | None = None
     drive_notch_damping: float | None = None
     drive_target_hz: float | None = None
-    drive_target_damping: float = 0.7
+    drive_target_damping: float | None = None
     kind: str = field(default="piezo", init=False)
     interpolation: str = field(default="linear", init=False)
 
@@ -249,7 +249,7 @@ class PiezoStage:
             raise ValueError(f"update_hz ({self.update_hz:g}) must be >= 8 x resonance_hz "
                              f"({self.resonance_hz:g}) to integrate the mode")
         if self.drive_notch_hz is None:
-            for name in ("drive_notch_damping", "drive_target_hz"):
+            for name in ("drive_notch_damping", "drive_target_hz", "drive_target_damping"):
                 if getattr(self, name) is not None:
                     raise ValueError(f"{name} shapes the drive notch: give drive_notch_hz "
                                      "too")
@@ -258,7 +258,8 @@ class PiezoStage:
                  ("drive_notch_damping", self.drive_notch_damping is None
                   or 0 < self.drive_notch_damping < 1),
                  ("drive_target_hz", self.drive_target_hz is None or self.drive_target_hz > 0),
-                 ("drive_target_damping", 0 < self.drive_target_damping <= 2))
+                 ("drive_target_damping", self.drive_target_damping is None
+                  or 0 < self.drive_target_damping <= 2))
         for name, ok in notch:
             if not ok:
                 raise ValueError(f"{name} out of range: {getattr(self, name)}")
@@ -309,6 +310,11 @@ class PiezoStage:
         return 0.5 * (lo + hi), beta
 
     @property
+    def target_damping(self) -> float:
+        """The drive notch's new mode's damping (0.7 unless given)."""
+        return 0.7 if self.drive_target_damping is None else self.drive_target_damping
+
+    @property
     def target_hz(self) -> float:
         """The drive notch's new mode, Hz (3 x drive_notch_hz unless given)."""
         if self.drive_notch_hz is None:
@@ -338,7 +344,7 @@ class PiezoStage:
 
         zeta = self.damping if self.drive_notch_damping is None else self.drive_notch_damping
         b = poly(self.drive_notch_hz, zeta)
-        a = poly(self.target_hz, self.drive_target_damping)
+        a = poly(self.target_hz, self.target_damping)
         return b * (a.sum() / b.sum()), a
 
     @property
@@ -346,7 +352,7 @@ class PiezoStage:
         """Low-frequency group delay of the mode (2 zeta / omega_n; with the drive notch, of
         the target mode it puts in the mode's place), s."""
         if self.drive_notch_hz is not None:
-            return 2.0 * self.drive_target_damping / (2.0 * np.pi * self.target_hz)
+            return 2.0 * self.target_damping / (2.0 * np.pi * self.target_hz)
         return 2.0 * self.damping / (2.0 * np.pi * self.resonance_hz)
 
     def command_model(self) -> IdealStage:

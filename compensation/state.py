@@ -41,9 +41,14 @@ def from_arrays(prefix: str, cls: type | None, data: dict[str, np.ndarray]) -> A
     hints = {f.name: f for f in dataclasses.fields(cls)}
     kwargs = {}
     for name, f in hints.items():
+        key = f"{prefix}/{name}"
+        has_default = (f.default is not dataclasses.MISSING
+                       or f.default_factory is not dataclasses.MISSING)
+        if has_default and not any(k == key or k.startswith(key + "/") for k in data):
+            continue  # a field added after the checkpoint was written: its default
         sub = f.type if isinstance(f.type, type) else None
         nested = f.metadata.get("state_class") if f.metadata else None
-        kwargs[name] = from_arrays(f"{prefix}/{name}", nested or sub, data)
+        kwargs[name] = from_arrays(key, nested or sub, data)
     return cls(**kwargs)
 
 

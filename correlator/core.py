@@ -93,6 +93,7 @@ NEWTON_STOP_PX = 1e-3
 #: for the Knapp-Carter weights: 31 bins at 128^2. The weights' efficiency at low SNR is set by
 #: this average's noise: 11 bins gave 1.21x the CRLB on the medium texture at SNR 10 and
 #: 1.6-1.9x the Knapp-Carter bound on low-contrast photographs, 31 bins 1.17x and 1.2-1.4x
+#: (CRLB of central differences, 1.3x high; against the spectral CRLB: 1.55x and 1.48x)
 SMOOTH_FRACTION = 0.12
 #: ... and for the detection's whitening over 11 bins: selective weights (a wide average lets
 #: noise-dominated frequencies into the whitened surface and lowers the PSR of good matches)
@@ -139,15 +140,17 @@ class CorrelatorOptions:
         'gradient', 'parabolic', 'gaussian' or 'com'.
     jtc_filter : 'subtract' (default), 'plain' (joint plane only) or 'fringe'.
     joint_plane : for 'jtc', build the joint input plane explicitly (slower, as the optics do).
-    psr_threshold : minimum peak-to-sidelobe ratio for a valid detection. 5: with the
-        predicted-error gate below, 1000 noise-only pairs give no valid result at any
-        threshold from 4 to 7, while 7 rejected 2-3 % of the good low-contrast photographs.
+    psr_threshold : minimum peak-to-sidelobe ratio for a valid detection. 7: near the
+        detection threshold (strong texture at SNR 0.5-3, 32^2-256^2 blocks) 5 or 6 let
+        0.25-0.75 % of the pairs through valid with an error beyond 0.5 px (7: 0-0.5 %), while
+        the predicted-error gate alone keeps noise-only pairs out at any threshold from 4 to 7.
     max_shift_px : largest |shift| component searched; default a quarter of the block size.
-    max_crlb_px : largest predicted 1-sigma error of a valid result, px. 0.18: an error of
-        0.5 px is a 2.8-sigma event on an axis. On the weak texture at SNR 10, whose blocks sit
-        near the limit and whose errors are 1.14x their prediction, 0.15 / 0.18 / 0.2 flag
-        28 / 62 / 80 % valid with 0 / 0.17 / 0.67 % false-valid; on low-contrast photographs
-        (std 12 % of the mean, SNR 10) 82 / 85 / 87 % with 0-0.33 % false-valid.
+    max_crlb_px : largest predicted 1-sigma error of a valid result, px. 0.15: an error of
+        0.5 px is a > 3-sigma event on an axis, so even a texture whose every block sits near
+        the limit stays below 0.5 % false-valid (0.2 gives 0.7 % on the weak texture at SNR 10,
+        whose errors are 1.14x their prediction, while it flags 85 % instead of 81 % of
+        low-contrast photographs valid with 0.2 % false-valid; 0.18 passes 1.75 % false-valid
+        at 128^2, SNR 1, where errors exceed their small-error prediction).
     weighting : 'snr' (Knapp-Carter weights, default) or 'flat' for the Fourier refinement.
     rewindow : give every block the passes with both windows on the common content
         (default; False keeps one FFT per block, its window bias is 0.01-0.03 px on smooth
@@ -178,9 +181,9 @@ class CorrelatorOptions:
     subpixel: str | None = None
     jtc_filter: str = "subtract"
     joint_plane: bool = False
-    psr_threshold: float = 5.0
+    psr_threshold: float = 7.0
     max_shift_px: float | None = None
-    max_crlb_px: float = 0.18
+    max_crlb_px: float = 0.15
     weighting: str = "snr"
     rewindow: bool = True
     iterations: int = 3

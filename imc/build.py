@@ -410,9 +410,11 @@ class LoopParts:
     margins: object  # compensation.analytic.Margins
 
 
-def piezo_update_hz(rate_hz: float, resonance_hz: float) -> float:
-    """The smallest multiple of the frame rate at or above 20 x the resonance."""
-    return rate_hz * max(1, int(np.ceil(20.0 * resonance_hz / rate_hz - 1e-9)))
+def piezo_update_hz(rate_hz: float, resonance_hz: float, drive_hz: float = 0.0) -> float:
+    """The smallest multiple of the frame rate at or above 20 x the resonance and 4 x the
+    drive notch's highest frequency (``drive_hz``, 0 without one)."""
+    need = max(20.0 * resonance_hz, 4.0 * drive_hz)
+    return rate_hz * max(1, int(np.ceil(need / rate_hz - 1e-9)))
 
 
 def build_loop(m: Models, channel=None, plant_sigma_px: float | None = None) -> LoopParts:
@@ -451,7 +453,9 @@ def build_loop(m: Models, channel=None, plant_sigma_px: float | None = None) -> 
         aparams = comp.actuator.params()
         if comp.actuator.kind == "piezo" and aparams.get("update_hz") is None:
             res = aparams.get("resonance_hz", 357.0)
-            aparams["update_hz"] = piezo_update_hz(rate, res)
+            notch = aparams.get("drive_notch_hz") or 0.0
+            drive = max(notch, aparams.get("drive_target_hz") or 3.0 * notch)
+            aparams["update_hz"] = piezo_update_hz(rate, res, drive)
         wired = {"ramp_s": period} if comp.actuator.kind == "ideal" else {}
         actuator = make_block("actuator", comp.actuator.kind, aparams, wired)
         cparams = comp.controller.params()

@@ -5,7 +5,7 @@ Protocol (the paper's): fragments rendered at 0.25 m and resampled to 0.75 m per
 sub-pixel shifts applied before resampling, motion blur in the Fourier domain, 128^2 blocks,
 grey levels 0..255 with noise of sigma 20; the error of a block is |bias| + 1 sigma over its
 successful trials (valid, and within ``success_px`` = 0.5 px of the truth on both axes: the
-correlator's own validity with its default ``max_crlb_px`` of 0.18 px); a block where fewer
+correlator's own validity with its default ``max_crlb_px`` of 0.15 px); a block where fewer
 than half the trials succeed is flagged (NaN), and the trials called valid but off by more
 than 0.5 px are counted apart (``wrong``).
 
@@ -83,7 +83,7 @@ class TextureMapConfig:
     height_m: float = 2400.0
     focal_length_m: float = 0.110
     sun_deg: tuple[float, float] = (50.0, 140.0)
-    max_crlb_px: float = 0.18
+    max_crlb_px: float = 0.15
     success_px: float = 0.5
 
     @property

@@ -263,7 +263,7 @@ class PiezoStage:
         for name, ok in notch:
             if not ok:
                 raise ValueError(f"{name} out of range: {getattr(self, name)}")
-        top = max(self.drive_notch_hz, self.target_hz)
+        top = self.drive_top_hz
         if self.update_hz is not None and self.update_hz < 4.0 * top:
             raise ValueError(f"update_hz ({self.update_hz:g}) must be >= 4 x the drive "
                              f"notch's frequencies ({top:g} Hz) to place them")
@@ -321,6 +321,12 @@ class PiezoStage:
             return self.resonance_hz
         return self.drive_target_hz or 3.0 * self.drive_notch_hz
 
+    @property
+    def drive_top_hz(self) -> float:
+        """The drive notch's highest frequency (its zeros' or its target's), Hz; 0 when off:
+        the DAC must run at 4 x it or more."""
+        return 0.0 if self.drive_notch_hz is None else max(self.drive_notch_hz, self.target_hz)
+
     @cached_property
     def _shaper(self) -> tuple[np.ndarray, np.ndarray] | None:
         return self._shaper_coefficients()
@@ -334,12 +340,11 @@ class PiezoStage:
 
         def poly(f_hz: float, zeta: float) -> np.ndarray:
             w = 2.0 * np.pi * f_hz
-            root = np.exp((-zeta * w + 1j * w * np.sqrt(max(1.0 - zeta * zeta, 0.0)))
-                          * self.dt_s)
             if zeta >= 1.0:  # two real poles
                 r1 = np.exp((-zeta + np.sqrt(zeta * zeta - 1.0)) * w * self.dt_s)
                 r2 = np.exp((-zeta - np.sqrt(zeta * zeta - 1.0)) * w * self.dt_s)
                 return np.array([1.0, -(r1 + r2), r1 * r2])
+            root = np.exp((-zeta + 1j * np.sqrt(1.0 - zeta * zeta)) * w * self.dt_s)
             return np.array([1.0, -2.0 * root.real, abs(root) ** 2])
 
         zeta = self.damping if self.drive_notch_damping is None else self.drive_notch_damping
@@ -391,6 +396,8 @@ class PiezoStage:
         if q is not None and shaper is None:
             u = np.round(u / q) * q
         sh = state.shaper.copy()
+        if shaper is not None:
+            (b0, b1, b2), (_, a1, a2) = shaper
         slew = np.inf if self.slew_px_s is None else self.slew_px_s * self.dt_s
         gamma = self.creep_pct_per_decade / 100.0
         decay = np.exp(-self.dt_s / np.array(CREEP_TAUS_S))
@@ -402,7 +409,6 @@ class PiezoStage:
         for i in range(n):
             dac = u
             if shaper is not None:  # transposed direct form II, per axis; then the DAC
-                (b0, b1, b2), (_, a1, a2) = shaper
                 shaped = b0 * u + sh[:, 0]
                 sh = np.stack([b1 * u - a1 * shaped + sh[:, 1], b2 * u - a2 * shaped], axis=1)
                 dac, clipped = _stroke_limit(shaped, self.stroke_px)  # the DAC's range

@@ -142,8 +142,9 @@ class CorrelatorOptions:
     joint_plane : for 'jtc', build the joint input plane explicitly (slower, as the optics do).
     psr_threshold : minimum peak-to-sidelobe ratio for a valid detection. 7: near the
         detection threshold (strong texture at SNR 0.5-3, 32^2-256^2 blocks) 5 or 6 let
-        0.25-0.75 % of the pairs through valid with an error beyond 0.5 px (7: 0-0.5 %), while
-        the predicted-error gate alone keeps noise-only pairs out at any threshold from 4 to 7.
+        0.25-0.75 % of the pairs through valid with an error beyond 0.5 px (7 with the 0.15 px
+        limit below: none), while the predicted-error gate alone keeps noise-only pairs out
+        at any threshold from 4 to 7.
     max_shift_px : largest |shift| component searched; default a quarter of the block size.
     max_crlb_px : largest predicted 1-sigma error of a valid result, px. 0.15: an error of
         0.5 px is a > 3-sigma event on an axis, so even a texture whose every block sits near

@@ -122,9 +122,14 @@ def crlb_px(clean: np.ndarray, sigma: float) -> np.ndarray:
     """
     gy, gx = band_limited_gradients(np.asarray(clean, dtype=np.float64))
     a11, a22 = (gy * gy).sum(axis=(-2, -1)), (gx * gx).sum(axis=(-2, -1))
-    a12 = (gy * gx).sum(axis=(-2, -1))
+    return np.sqrt(2.0 * sigma**2 * _inverse_diagonal(a11, a22, (gy * gx).sum(axis=(-2, -1))))
+
+
+def _inverse_diagonal(a11: np.ndarray, a22: np.ndarray, a12: np.ndarray) -> np.ndarray:
+    """The diagonal (..., 2) of the inverse of the symmetric 2 x 2 matrices [[a11, a12],
+    [a12, a22]]."""
     det = a11 * a22 - a12 * a12
-    return np.sqrt(2.0 * sigma**2 * np.stack([a22 / det, a11 / det], axis=-1))
+    return np.stack([a22 / det, a11 / det], axis=-1)
 
 
 def periodic_component(img: np.ndarray) -> np.ndarray:
@@ -182,11 +187,9 @@ def correlation_bound_px(clean: np.ndarray, sigma: float) -> np.ndarray:
         weight[..., :, w // 2] = 0.0
     wy = 2 * np.pi * np.fft.fftfreq(h)[:, None]
     wx = 2 * np.pi * np.fft.fftfreq(w)[None, :]
-    a11 = (weight * wy * wy).sum(axis=(-2, -1))
-    a22 = (weight * wx * wx).sum(axis=(-2, -1))
-    a12 = (weight * wy * wx).sum(axis=(-2, -1))
-    det = a11 * a22 - a12 * a12
-    return np.sqrt(np.stack([a22 / det, a11 / det], axis=-1))
+    return np.sqrt(_inverse_diagonal((weight * wy * wy).sum(axis=(-2, -1)),
+                                     (weight * wx * wx).sum(axis=(-2, -1)),
+                                     (weight * wy * wx).sum(axis=(-2, -1))))
 
 
 def image_pairs(images, n: int, block_px: int, rng: np.random.Generator, *,

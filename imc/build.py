@@ -450,14 +450,11 @@ def build_loop(m: Models, channel=None, plant_sigma_px: float | None = None) -> 
     try:
         estimator = make_block("estimator", comp.estimator.kind, comp.estimator.params(),
                                {"field_point_px": m.field_point_px})
-        aparams = comp.actuator.params()
-        if comp.actuator.kind == "piezo" and aparams.get("update_hz") is None:
-            res = aparams.get("resonance_hz", 357.0)
-            notch = aparams.get("drive_notch_hz") or 0.0
-            drive = max(notch, aparams.get("drive_target_hz") or 3.0 * notch)
-            aparams["update_hz"] = piezo_update_hz(rate, res, drive)
         wired = {"ramp_s": period} if comp.actuator.kind == "ideal" else {}
-        actuator = make_block("actuator", comp.actuator.kind, aparams, wired)
+        actuator = make_block("actuator", comp.actuator.kind, comp.actuator.params(), wired)
+        if comp.actuator.kind == "piezo" and actuator.update_hz is None:
+            actuator = dataclasses.replace(actuator, update_hz=piezo_update_hz(
+                rate, actuator.resonance_hz, actuator.drive_top_hz))
         cparams = comp.controller.params()
         wired = {"rate_hz": 1.0 / period}
         if comp.controller.kind == "kalman":

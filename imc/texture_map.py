@@ -320,7 +320,7 @@ class TextureMap:
     overview: np.ndarray
     render_s: float
     correlate_s: float
-    corr_bound_px: np.ndarray | None = None
+    corr_bound_px: np.ndarray
 
     @property
     def ratio(self) -> np.ndarray:
@@ -336,7 +336,7 @@ class TextureMap:
             r = e / ref
             return int(np.sum(np.abs(r[np.isfinite(r)] - 1.0) <= tolerance))
 
-        r, rb = self.ratio, e / self.bound_px
+        r, rb, rc = self.ratio, e / self.bound_px, e / self.corr_bound_px
         return {
             "blocks": int(e.size), "measured_blocks": int(np.isfinite(e).sum()),
             "mean_px": float(np.nanmean(e)),
@@ -348,21 +348,13 @@ class TextureMap:
             "bound_ratio_min": float(np.nanmin(rb)), "bound_ratio_median":
             float(np.nanmedian(rb)), "bound_ratio_max": float(np.nanmax(rb)),
             "within_bound": within(self.bound_px), "tolerance": tolerance,
-            **self._corr_summary(),
+            "corr_bound_mean_px": float(np.nanmean(self.corr_bound_px)),
+            "corr_bound_ratio_min": float(np.nanmin(rc)),
+            "corr_bound_ratio_median": float(np.nanmedian(rc)),
+            "corr_bound_ratio_max": float(np.nanmax(rc)),
             "success_fraction": float(np.mean(self.success)),
             "wrong_fraction": float(np.mean(self.wrong)),
             "noise_sigma_mean": float(np.nanmean(self.noise_sigma)), "paper_px": PAPER_ERROR_PX}
-
-
-    def _corr_summary(self) -> dict:
-        """The correlation bound's mean and the measured error against it."""
-        if self.corr_bound_px is None:
-            return {}
-        rc = self.error_px / self.corr_bound_px
-        return {"corr_bound_mean_px": float(np.nanmean(self.corr_bound_px)),
-                "corr_bound_ratio_min": float(np.nanmin(rc)),
-                "corr_bound_ratio_median": float(np.nanmedian(rc)),
-                "corr_bound_ratio_max": float(np.nanmax(rc))}
 
 
 def grey_levels(overview: np.ndarray, levels: tuple[float, float]) -> tuple[float, float]:

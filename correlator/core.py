@@ -447,9 +447,10 @@ class Correlator:
         W conj(R), detection weights, CRLB sums, noise. A worker thread only ever computes
         rows of its own chunk (the rows of a call with repeated blocks are made before the
         threads start), so no thread reads a row another is writing."""
-        todo = np.unique(rows[~self._ref_ready[rows]])
-        if not len(todo):
+        ready = self._ref_ready[rows]
+        if ready.all():
             return
+        todo = np.unique(rows[~ready])
         lay = self._lay
         arrays = (self._ref_w, self._ref_spec, self._ref_wconj, self._ref_fw, self._ref_bw,
                   self._ref_m, self._ref_noise)
@@ -664,7 +665,7 @@ class Correlator:
             & np.all(crlb <= o.max_crlb_px, axis=1)
         )
         shift = np.where(np.isfinite(shift), shift, 0.0)
-        return shift, valid, np.nan_to_num(psr), crlb
+        return shift, valid, psr, crlb  # the detection's PSR is finite (0 where it is not)
 
     def _cur0(self, cur_arr: np.ndarray) -> np.ndarray:
         return _sanitise(cur_arr)[0]
@@ -706,13 +707,11 @@ class Correlator:
         kernels.whiten_band(y.view(np.float32), bw, np.asarray(rows, dtype=np.int64),
                             lay.band_rows, kb, floor, white.view(np.float32))
         surf = fftbackend.irfft2(white, (hb, 2 * (kb - 1)), normalise=False)
-        lag, psr, rival = np.empty((n, 2)), np.empty(n), np.empty(n)
+        lag, psr, ratio = np.empty((n, 2)), np.empty(n), np.empty(n)
         kernels.detect(surf, self._rows_in, self._cols_in, 2, BAND_RIVAL_SAMPLES, given, lag, psr,
-                       rival)
+                       ratio)
         lag *= lay.q
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = np.where(psr > 0, rival / psr, 1.0)
-        return psr, (lag, np.nan_to_num(ratio, nan=1.0))
+        return psr, (lag, ratio)
 
     def _fourier(self, y, floor, ridx, cur_arr, noise, ref_m, pred, d_fit, cache):
         """Fourier refinement after the band detection: band Newton from the detected peak
@@ -727,14 +726,12 @@ class Correlator:
         step = np.zeros((n, 2))
         given = np.full((n, 2), -1, np.int64)
         trusted = np.zeros(n, bool)
-        if pred is not None:
-            dp, hp, sp, _ = self._newton(y, np.arange(n), pred, max(1, o.iterations))
-            cp = _crlb(ref_m, noise, hp, h * w)
-            trusted = (_settled(sp, cp, NEWTON_TOL_PX)
-                       & np.all(np.abs(dp - pred) <= o.trust_prediction_px, axis=1))
-            d[trusted], hess[trusted], step[trusted] = dp[trusted], hp[trusted], sp[trusted]
+        if pred is not None:  # the untrusted rows of d, hess, step are replaced by the search's
+            d, hess, step, _ = self._newton(y, np.arange(n), pred, max(1, o.iterations))
+            trusted = (_settled(step, _crlb(ref_m, noise, hess, h * w), NEWTON_TOL_PX)
+                       & np.all(np.abs(d - pred) <= o.trust_prediction_px, axis=1))
             hs, ws = len(lay.band_rows), 2 * (lay.band_cols - 1)
-            given[trusted] = np.rint(dp[trusted] / lay.q).astype(np.int64) % [hs, ws]
+            given[trusted] = np.rint(d[trusted] / lay.q).astype(np.int64) % [hs, ws]
         psr, (d0, ratio) = self._band_detect(y, self._ref_bw, ridx, floor, given)
         if d_fit is not None:
             d0 = d_fit
@@ -747,7 +744,7 @@ class Correlator:
         ambiguous = ~trusted & (ratio >= BAND_MAX_RIVAL_RATIO)
         settled = _settled(step, crlb, NEWTON_TOL_PX)
         # ---- common-content passes: blocks moved beyond the exact margin (or all, if asked)
-        far = np.any(np.abs(d) > np.array(lay.margin), axis=1) & np.isfinite(d).all(axis=1)
+        far = np.any(np.abs(d) > lay.margin, axis=1) & np.isfinite(d).all(axis=1)
         idx = np.flatnonzero(np.ones(n, bool) if o.rewindow else far)
         settled = self._passes(idx, ridx, cur_arr, noise, d, crlb, settled, cache)
         return d, crlb, sane & settled, psr, ambiguous
@@ -777,6 +774,8 @@ class Correlator:
         component jumps to its fixed point (Aitken's delta-squared), then starts over.
         """
         settled = settled.copy()
+        if not len(idx):
+            return settled
         prev = np.zeros_like(d)
         moved = np.zeros(len(d))
         for _ in range(COMMON_PASSES):

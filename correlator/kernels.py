@@ -307,16 +307,18 @@ def whiten_band(y, bw, ref_idx, band_rows, band_cols, floor, out):
 
 
 @nb.njit(**_JIT)
-def detect(surf, rows_in, cols_in, exclude, rival_px, given, lag, psr, rival):
-    """Peak, PSR and rival peak of detection surfaces (n, hs, ws) (lag 0 at [0, 0], wrapped).
+def detect(surf, rows_in, cols_in, exclude, rival_px, given, lag, psr, ratio):
+    """Peak, PSR and rival ratio of detection surfaces (n, hs, ws) (lag 0 at [0, 0], wrapped).
 
     The search range is the samples of rows ``rows_in`` and columns ``cols_in``. The peak is
     the largest sample there, or the sample ``given`` (n, 2)
     where its first entry is >= 0; writes lag (n, 2), its signed lag in samples plus a
     3-point parabolic step (within +-0.5) on each axis; psr (n,) = (peak - mean) / std of the
-    samples outside a box of +-``exclude`` around it; rival (n,) the PSR-scaled height of the
-    best other local maximum (3 x 3, wrapped) inside the range and more than ``rival_px``
-    samples from the peak (-inf if none).
+    samples outside a box of +-``exclude`` around it (0 where not finite); ratio (n,) the PSR
+    of the best other local maximum (3 x 3, wrapped) inside the range and more than
+    ``rival_px`` samples from the peak over the peak's PSR (-inf if none; 1 where the PSR is
+    not positive). A given peak is not searched for rivals (ratio -inf): it was not chosen
+    from the surface.
     """
     n, hs, ws = surf.shape
     for b in range(n):
@@ -367,7 +369,11 @@ def detect(surf, rows_in, cols_in, exclude, rival_px, given, lag, psr, rival):
         cnt = hs * ws - cnt
         mean = s / cnt
         std = np.sqrt(max(ss / cnt - mean * mean, 1e-300))
-        psr[b] = (peak - mean) / std
+        v_psr = (peak - mean) / std
+        psr[b] = v_psr if np.isfinite(v_psr) else 0.0
+        ratio[b] = -np.inf
+        if given[b, 0] >= 0:
+            continue
         top = -np.inf
         for i in rows_in:
             dy = abs((i - by + hs // 2) % hs - hs // 2)
@@ -385,7 +391,11 @@ def detect(surf, rows_in, cols_in, exclude, rival_px, given, lag, psr, rival):
                             is_max = False
                 if is_max:
                     top = v
-        rival[b] = (top - mean) / std if top > -np.inf else -np.inf
+        if not psr[b] > 0.0:
+            ratio[b] = 1.0
+        elif top > -np.inf:
+            v_ratio = ((top - mean) / std) / psr[b]
+            ratio[b] = v_ratio if np.isfinite(v_ratio) else 1.0
 
 
 @nb.njit(**_JIT)

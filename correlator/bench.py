@@ -281,7 +281,7 @@ def speed_table(rng, repeats: int = 7, block_px: int = 128, n_track: int = 64,
                                              strict=True)]
         with ThreadPoolExecutor(threads) as ex:
             rate = _rates(lambda ex=ex, parts=parts: list(ex.map(ffts, parts)), n_pairs,
-                                repeats)
+                          repeats)
         add(f"FFT bound ({fftbackend.backend()} float32)", "bound", threads, rate,
             "1 forward + 1 inverse per pair")
     return rows

@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from imc.build import build_models
-from imc.flight import FlightConfig, Session, plot_session, run_session
 from imc.io import write_json
 from imc.scenario import load_scenario
+from imc.studies.flight import FlightConfig, Session, plot_session, run_session
+from imc.wiring.build import build_models
 
 ROOT = Path(__file__).resolve().parents[1]
 #: the paper: sigma of each record <= 0.25 px per axis over 9 sessions

@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/bench_loop.py [--quick] [--out benchmarks/out/loop]
 
-Writes loop.json and loop.md (the tables quoted in README.md) and rejection PNGs. Figures are
+Writes loop.json and loop.md (the tables quoted in docs/loop-targets.md) and rejection PNGs. Figures are
 measured here, never asserted in tests. About 10 minutes on 2 cores (--quick: the analytic
 studies only, ~3 minutes).
 """
@@ -32,13 +32,13 @@ from compensation.analytic import (  # noqa: E402
     max_integrator_gain,
     measured_rejection,
 )
+from compensation.analytic_plant import AnalyticPlant, sinusoids  # noqa: E402
 from compensation.controllers import PII, Integrator, KalmanPredictor, Line, Notch  # noqa: E402
 from compensation.estimators import MeanEstimator  # noqa: E402
 from compensation.loop import Timeline, simulate  # noqa: E402
-from compensation.plants import AnalyticPlant, sinusoids  # noqa: E402
 from compensation.transport import Transport  # noqa: E402
 from imc.io import write_json  # noqa: E402
-from imc.loopplot import delay_s, loop_study  # noqa: E402
+from imc.outputs.loopplot import delay_s, loop_study  # noqa: E402
 
 SCEN = ROOT / "scenarios"
 

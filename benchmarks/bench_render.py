@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from imc.build import build_models
 from imc.scenario import load_scenario
+from imc.wiring.build import build_models
 from scene.kernel import Renderer, Sun, load_mitsuba
 from scene.pinhole import ray_keyframes
 

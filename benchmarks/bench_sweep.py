@@ -3,7 +3,7 @@ the 1,000-point analytic sweep.
 
     .venv/bin/python benchmarks/bench_sweep.py [--quick] [--out benchmarks/out/sweep]
 
-Writes sweep.json and sweep.md (the table quoted in README.md). Figures are measured here,
+Writes sweep.json and sweep.md (the table quoted in docs/benchmarks.md). Figures are measured here,
 never asserted in tests. About 20 minutes on 2 cores (--quick: without the 1,000 points,
 ~8 minutes). The machine's other load shows in every figure: run it on a quiet machine.
 """
@@ -29,9 +29,9 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from imc.distribute import runner  # noqa: E402
 from imc.io import atomic_write, write_json  # noqa: E402
-from imc.sweep import SweepConfig, expand, load_sweep, run_sweep  # noqa: E402
+from imc.workflow.distribute import runner  # noqa: E402
+from imc.workflow.sweep import SweepConfig, expand, load_sweep, run_sweep  # noqa: E402
 
 IMC = str(Path(sys.executable).parent / "imc")
 SWEEP_1000 = ROOT / "scenarios" / "sweeps" / "analytic_1000.yaml"
@@ -82,7 +82,7 @@ _HALF = """
 import json, sys, time
 sys.path.insert(0, {bench!r})
 from bench_sweep import small_sweep
-from imc.sweep import expand, run_point
+from imc.workflow.sweep import expand, run_point
 points = expand(small_sweep({g}, {f}, 2.0, "speed")).points[{part}::2]
 run_point(points[0].scenario, {work!r} + "/warm", False)  # imports, first-run caches
 t = time.perf_counter()
@@ -110,7 +110,7 @@ def speed(tmp: Path, log) -> dict:
     process; and two plain processes (no Dask) as the machine's own bound."""
     g, f = 8, 6
     cfg = small_sweep(g, f, 2.0, "speed")
-    from imc.sweep import run_point
+    from imc.workflow.sweep import run_point
 
     run_point(expand(cfg).points[0].scenario, str(tmp / "warm"), False)  # as the workers
     res = {}

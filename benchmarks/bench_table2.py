@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from imc.io import write_json
-from imc.table2 import PAPER_TABLE2, Table2Config, run_class
+from imc.studies.table2 import PAPER_TABLE2, Table2Config, run_class
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from imc import streams
 from imc.io import write_json
-from imc.texture_map import PAPER_ERROR_PX, TextureMapConfig, plot_map, run_map
+from imc.studies.texture_map import PAPER_ERROR_PX, TextureMapConfig, plot_map, run_map
+from imc.wiring import streams
 from scene.classes import scene_class
 from scene.geotiff import terrain_from_geotiff
 

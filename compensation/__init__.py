@@ -1,5 +1,6 @@
 """The compensation loop: blocks behind protocols, the loop that steps them, the analytic
-loop model, and the residual-blur metrics. Pure numpy; imports no other imcsim package."""
+loop model, and the residual-blur metrics. Numpy and scipy (pydantic for the
+blocks' parameter checks in :mod:`compensation.registry`); imports no other imcsim package."""
 
 from compensation.analytic import LoopModel, Margins, design_lines, measured_rejection
 from compensation.blocks import (

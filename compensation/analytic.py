@@ -328,9 +328,9 @@ def measured_rejection(model: LoopModel, freqs_hz, amplitude_px: float = 0.1,
     latency; one block on the analytic plant, no noise) run against a sinusoid at each
     frequency; the residual's component at f over whole periods after ``settle_s`` (default:
     the longer of 0.5 s and 20 periods), divided by the disturbance's."""
+    from compensation.analytic_plant import AnalyticPlant, sinusoids
     from compensation.estimators import MeanEstimator
     from compensation.loop import Timeline, simulate
-    from compensation.plants import AnalyticPlant, sinusoids
     from compensation.transport import Transport
 
     out = []

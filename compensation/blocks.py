@@ -111,7 +111,9 @@ class Estimator(Protocol):
 
     kind: str
 
-    def init(self) -> Any: ...
+    def init(self, n_blocks: int) -> Any:
+        """The state before the first measurement of ``n_blocks`` blocks."""
+        ...
 
     def update(self, state: Any, meas: BlockMeasurements, stage_px: np.ndarray,
                ref_stage_px: np.ndarray) -> tuple[Any, MotionEstimate]:
@@ -131,7 +133,9 @@ class Controller(Protocol):
 
     kind: str
 
-    def init(self) -> Any: ...
+    def init(self) -> Any:
+        """The state before the first measurement (no command yet)."""
+        ...
 
     def update(self, state: Any, inp: ControlInput) -> tuple[Any, np.ndarray]: ...
 
@@ -148,7 +152,9 @@ class Actuator(Protocol):
     kind: str
     interpolation: str
 
-    def init(self) -> Any: ...
+    def init(self, t0_s: float) -> Any:
+        """The stage at rest at zero offset at time ``t0_s``."""
+        ...
 
     def clip(self, u_px: np.ndarray) -> np.ndarray:
         """The command as the stage can follow it (stroke limits), px."""
@@ -179,7 +185,9 @@ class Transport(Protocol):
     """How a frame's measurement reaches the controller: latency, drops, the device
     pipeline, a serial link. The loop models latency here and nowhere else."""
 
-    def init(self) -> Any: ...
+    def init(self) -> Any:
+        """The state before the first frame (nothing in flight)."""
+        ...
 
     def blocks(self, frame: int, n_blocks: int) -> np.ndarray:
         """(B,) blocks of this frame the correlator processes."""
@@ -219,16 +227,16 @@ class Plant(Protocol):
 
 #: kind -> class, per role; filled by :func:`register` as the block modules are imported
 #: (compensation.registry imports the built-in ones)
-_REGISTRY: dict[str, dict[str, type]] = {"estimator": {}, "controller": {}, "actuator": {}}
+REGISTRY: dict[str, dict[str, type]] = {"estimator": {}, "controller": {}, "actuator": {}}
 
 
 def register(role: str, kind: str):
     """Class decorator: make ``kind`` buildable by :func:`build` for ``role``."""
 
     def deco(cls):
-        if kind in _REGISTRY[role]:
+        if kind in REGISTRY[role]:
             raise ValueError(f"{role} kind {kind!r} is registered twice")
-        _REGISTRY[role][kind] = cls
+        REGISTRY[role][kind] = cls
         cls.kind = kind
         return cls
 

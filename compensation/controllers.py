@@ -274,6 +274,9 @@ class Integrator(FeedbackController):
     """Leaky integrator u_j = (1 - leak) u_{j-1} + gain e_j: C(z) = gain / (1 - (1-leak) z^-1).
     With leak 0 and an ideal stage this is today's first-order loop."""
 
+    #: the parameter that sets the loop's gain (named by the wiring's margin checks)
+    TUNING: ClassVar[str] = "gain"
+
     gain: float = 0.8
     leak: float = 0.0
 
@@ -292,6 +295,8 @@ class Integrator(FeedbackController):
 class PI(FeedbackController):
     """Proportional-integral: C(z) = kp + ki / (1 - z^-1)."""
 
+    TUNING: ClassVar[str] = "kp / ki"
+
     kp: float = 0.2
     ki: float = 0.5
 
@@ -304,6 +309,8 @@ class PI(FeedbackController):
 class PII(FeedbackController):
     """Type-2 law (PI-I): C(z) = kp + ki / (1 - z^-1) + kii / (1 - z^-1)^2; two integrators
     follow a ramp without error."""
+
+    TUNING: ClassVar[str] = "kp / ki / kii"
 
     kp: float = 0.2
     ki: float = 0.4
@@ -378,6 +385,7 @@ class KalmanPredictor:
     """
 
     WIRED: ClassVar[tuple[str, ...]] = ("rate_hz", "nominal_px")
+    TUNING: ClassVar[str] = "bandwidth_hz"
 
     rate_hz: float = 100.0
     order: int = 2

@@ -1,4 +1,13 @@
-"""The ``imc`` command line: run, validate, info.
+"""The ``imc`` command line.
+
+Commands: ``info`` (versions, the Mitsuba variant), ``validate`` (check a scenario, estimate
+its size, the loop's margins; renders nothing), ``run`` (one scenario end to end: metrics,
+tracks, report, Rerun recording), ``metrics`` (a run's metrics table), ``loop`` (the loop's
+analytic and measured rejection), ``sweep`` (a parameter sweep on Dask), ``check`` (every
+scenario against its ``expect:`` section, JUnit), ``report`` (a run's or sweep's report
+again), ``view`` (the Rerun viewer), ``device-emulator`` / ``device-read`` (the hardware
+correlator's serial protocol on a pseudo-terminal), ``bench correlator`` (the correlator
+against its bounds and its peers).
 
 Every command ends in one line on bad input (exit 2: the scenario, a file or an argument,
 named with the fix); an internal error (a bug) prints one line saying so and where the full
@@ -22,7 +31,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from imc.scenario import ScenarioError, error_line, load_scenario
+from imc.scenario import ScenarioError, error_line, installed_version, load_scenario
 from imc.yamlload import YamlInputError, load_yaml, read_text, short
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
@@ -30,9 +39,21 @@ app = typer.Typer(add_completion=False, no_args_is_help=True,
 err = Console(stderr=True)
 out = Console()
 
-#: where an internal error's traceback goes (a command sets its output folder once checked)
-_log_dir: list[Path] = []
 ERROR_LOG = "imc-error.log"
+#: the commands' parameters that name their output folder (where an internal error's
+#: traceback goes when the folder exists)
+OUT_PARAMETERS = ("out_raw", "out_dir")
+
+
+def _log_dirs(kwargs: dict) -> tuple[Path, ...]:
+    """The running command's output folder, if it names one that exists."""
+    for name in OUT_PARAMETERS:
+        raw = kwargs.get(name)
+        if raw is not None and str(raw).strip():
+            with contextlib.suppress(OSError):
+                if Path(raw).is_dir():
+                    return (Path(raw),)
+    return ()
 
 
 def _fail(msg: str, code: int = 2) -> None:
@@ -50,11 +71,12 @@ def _one_line(msg: str, limit: int = 600) -> str:
     return escape(short(" ".join(words), limit))
 
 
-def _internal_error(e: BaseException) -> None:
-    """One line for a bug, the traceback written to a log; exit 1."""
+def _internal_error(e: BaseException, folders: tuple[Path, ...] = ()) -> None:
+    """One line for a bug, the traceback written to a log (in the first of ``folders`` that
+    takes it, else the system's temporary folder); exit 1."""
     text = "".join(traceback.format_exception(e))
     where = None
-    for folder in (*_log_dir, Path(tempfile.gettempdir())):
+    for folder in (*folders, Path(tempfile.gettempdir())):
         try:
             log = Path(folder) / ERROR_LOG
             log.write_text(f"imcsim {time.strftime('%Y-%m-%d %H:%M:%S')} {sys.argv!r}\n{text}")
@@ -75,7 +97,6 @@ def _guarded(fn):
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
-        _log_dir.clear()
         try:
             return fn(*args, **kwargs)
         except (typer.Exit, typer.Abort, typer.TyperException, SystemExit):
@@ -88,7 +109,7 @@ def _guarded(fn):
             name = f"{short(str(e.filename), 200)}: " if e.filename else ""
             _fail(f"{name}{e.strerror or e} (a file system error)", code=1)
         except BaseException as e:  # noqa: BLE001 (every other exception is a bug)
-            _internal_error(e)
+            _internal_error(e, _log_dirs(kwargs))
 
     return wrapper
 
@@ -119,13 +140,12 @@ def _out_dir(raw: str, option: str = "--out") -> Path:
         _fail(f"{option} {name}: not writable (permission denied); choose another folder")
     except OSError as e:
         _fail(f"{option} {name}: cannot use it as a folder ({e.strerror or e})")
-    _log_dir[:] = [p]
     return p
 
 
 def _size_check(sc, force: bool):
-    """The run's estimate (imc.budget), refused above the budget unless ``force``."""
-    from imc.budget import check_run_size, estimate_run
+    """The run's estimate (imc.wiring.budget), refused above the budget unless ``force``."""
+    from imc.wiring.budget import check_run_size, estimate_run
     from scene.geotiff import GeoTiffError
 
     try:
@@ -156,7 +176,8 @@ def info() -> None:
     except VariantError as e:
         _fail(str(e))
     v = versions()
-    out.print(f"imcsim 0.1.0  python {sys.version.split()[0]}  numpy {numpy.__version__}  "
+    out.print(f"imcsim {installed_version()}  python {sys.version.split()[0]}  "
+              f"numpy {numpy.__version__}  "
               f"scipy {scipy.__version__}  mitsuba {v['mitsuba']}  drjit {v['drjit']}")
     out.print(f"mitsuba variant: {choice.variant}  ({choice.reason})")
     out.print(f"libLLVM for Dr.Jit: {choice.libllvm_path or 'none usable'}")
@@ -171,8 +192,8 @@ def validate(
 ) -> None:
     """Check a scenario file, its geometry and its loop design without rendering; print the
     run's size (frames, peak memory)."""
-    from imc.budget import LIGHT_TEXELS
-    from imc.build import build_loop, build_models
+    from imc.wiring.budget import LIGHT_TEXELS
+    from imc.wiring.build import build_loop, build_models
 
     sc = load_scenario(scenario)
     est = _size_check(sc, force)
@@ -297,9 +318,9 @@ def _finish_run(sc, out_dir: Path, metrics: dict, report: bool) -> None:
     """The expectations' table (exit 1 when one fails) and the report of a finished run."""
     import dataclasses
 
-    from imc.expect import judge
-    from imc.htmlreport import EXPECTATIONS, write_run_report
     from imc.io import write_json
+    from imc.outputs.htmlreport import EXPECTATIONS, write_run_report
+    from imc.workflow.expect import judge
 
     outcomes = judge(sc.expect, metrics)
     path = Path(out_dir) / EXPECTATIONS
@@ -376,52 +397,32 @@ def device_emulator(
     """
     import time
 
-    import numpy as np
+    from correlator.driver import PtyDevice
+    from imc.wiring import streams
+    from imc.wiring.build import build_models
+    from imc.wiring.emulator import as_device, device_records
 
-    from compensation.loop import simulate
-    from correlator.driver import PtyDevice, motion_records
-    from imc import streams
-    from imc.build import build_loop, build_models
-    from imc.plants import RenderedPlant
-
-    try:
-        sc = load_scenario(scenario)
-        c = sc.correlator.model_copy(update={
-            "method": "optical", "subpixel": (sc.correlator.subpixel
-                                              if sc.correlator.method == "optical" else None),
-            "timing": sc.correlator.timing.model_copy(update={"enabled": True}),
-            "link": sc.correlator.link.model_copy(update={"kind": "direct"})})
-        sc = sc.model_copy(update={"correlator": c, "compensation": sc.compensation.model_copy(
-            update={"enabled": False})})
-        _size_check(sc, force)
-        _link_folder(link)
-        m = build_models(sc)
-    except ScenarioError as e:
-        _fail(str(e))
+    sc = as_device(load_scenario(scenario))
+    _size_check(sc, force)
+    _link_folder(link)
+    m = build_models(sc)
     with PtyDevice(link, streams.rng(sc.seed, "device_emulator"), corrupt_probability=corrupt,
                    drop_probability=drop) as dev:
         out.print(f"device on {link} -> {link.resolve()} ({m.timing.correlations_per_s:g} "
                   f"correlations/s); rendering and correlating {sc.n_frames} frames ...")
-        parts = build_loop(m)
-        rec = simulate(RenderedPlant(m), parts.estimator, parts.controller, parts.actuator,
-                       parts.transport, parts.timeline, enabled=False).record
-        sched = m.schedule
-        kk, bb = np.nonzero(sched.done)
-        order = np.argsort(sched.deliver_s[kk, bb], kind="stable")
         t0 = time.monotonic()
-        for i in order:
-            k, b = int(kk[i]), int(bb[i])
-            t_dev = float(sched.deliver_s[k, b])
+        n_motion = 0
+        for t_dev, records in device_records(m):
             if speed > 0:
                 time.sleep(max(0.0, t0 + t_dev / speed - time.monotonic()))
-            dev.send(motion_records(k, np.array([1e6 * t_dev]), rec.shift_px[k, b][None],
-                                    rec.valid[k, b][None], rec.peak[k, b][None], [b]))
+            dev.send(records)
+            n_motion += 1
         end = time.monotonic() + linger_s
         while time.monotonic() < end:
             dev.heartbeat()
             time.sleep(0.25)
         dev.heartbeat()
-        out.print(f"sent {dev.seq} records ({len(order)} motion) on {link}")
+        out.print(f"sent {dev.seq} records ({n_motion} motion) on {link}")
 
 
 def _link_folder(link: Path) -> None:
@@ -492,8 +493,8 @@ def loop_cmd(
 ) -> None:
     """Plot the loop's rejection |S(f)| (analytic model) beside a sine sweep of the same
     loop on the analytic plant, with the delay bound; write loop.png and loop.json."""
-    from imc.build import build_loop, build_models
-    from imc.loopplot import loop_study
+    from imc.outputs.loopplot import loop_study
+    from imc.wiring.build import build_loop, build_models
 
     sc = load_scenario(scenario)
     out_dir = _out_dir(out_raw)
@@ -524,6 +525,7 @@ _MEMORY_HELP = "memory limit of each local worker (e.g. 4GiB; auto: the machine'
 
 
 @app.command()
+@_guarded
 def sweep(
     sweep_file: Path = typer.Argument(..., help="sweep YAML (base scenario, axes, mode, "
                                       "seeds, metrics)"),
@@ -549,9 +551,9 @@ def sweep(
         TimeRemainingColumn,
     )
 
-    from imc.distribute import SchedulerError, runner
-    from imc.htmlreport import write_sweep_report
-    from imc.sweep import SweepError, load_sweep, run_sweep
+    from imc.outputs.htmlreport import write_sweep_report
+    from imc.workflow.distribute import SchedulerError, runner
+    from imc.workflow.sweep import SweepError, load_sweep, run_sweep
 
     try:
         sw = load_sweep(sweep_file, force)
@@ -597,7 +599,7 @@ def _scenario_files(paths: list[Path]) -> list[Path]:
     """The scenario YAMLs under the paths (folders searched recursively; sweep files left
     out), in order, each once."""
 
-    from imc.sweep import is_sweep_file
+    from imc.workflow.sweep import is_sweep_file
 
     def sweep_like(f: Path) -> bool:
         try:
@@ -617,6 +619,7 @@ def _scenario_files(paths: list[Path]) -> list[Path]:
 
 
 @app.command()
+@_guarded
 def check(
     paths: list[Path] = typer.Argument(..., help="scenario files or folders (searched for "
                                        "*.yaml; sweep files are skipped)"),
@@ -635,8 +638,8 @@ def check(
 ) -> None:
     """Run every scenario under PATHS and judge its `expect:` section; exit 1 when an
     expectation fails or a run errs. --junit writes the results for a CI system."""
-    from imc.distribute import SchedulerError, Task, runner
-    from imc.expect import CaseResult, Outcome, check_one, write_junit
+    from imc.workflow.distribute import SchedulerError, Task, runner
+    from imc.workflow.expect import CaseResult, Outcome, check_one, write_junit
 
     out_dir = _out_dir(str(out_dir))
     files = _scenario_files(paths)
@@ -692,10 +695,11 @@ def check(
 
 
 @app.command(name="report")
+@_guarded
 def report_cmd(run_dir: Path = typer.Argument(..., help="a run folder (metrics.json) or a "
                                               "sweep folder (results.nc)")) -> None:
     """Write report.html and its PNG figures again for a run or a sweep folder."""
-    from imc.htmlreport import write_run_report, write_sweep_report
+    from imc.outputs.htmlreport import write_run_report, write_sweep_report
 
     if (run_dir / "sweep.json").exists() and (run_dir / "results.nc").exists():
         out.print(f"wrote {write_sweep_report(run_dir)}")
@@ -707,6 +711,7 @@ def report_cmd(run_dir: Path = typer.Argument(..., help="a run folder (metrics.j
 
 
 @app.command()
+@_guarded
 def view(
     run_dir: Path = typer.Argument(..., help="a run folder (recording.rrd) or a .rrd file"),
     web: bool = typer.Option(False, "--web", help="serve the web viewer instead of "
@@ -734,7 +739,7 @@ def view(
 
 
 bench_app = typer.Typer(add_completion=False, no_args_is_help=True,
-                        help="Benchmarks (figures for README; never asserted in tests).")
+                        help="Benchmarks (figures for docs/; never asserted in tests).")
 app.add_typer(bench_app, name="bench")
 
 
@@ -748,7 +753,7 @@ def bench_correlator(
     seed: int = typer.Option(0, min=0, max=2**63 - 1, help="seed of every random draw"),
 ) -> None:
     """Accuracy, validity and speed of every method and of the peers on the same pairs."""
-    from correlator.bench import run as run_bench
+    from imc.studies.correlator_peers import run as run_bench
 
     run_bench(_out_dir(out_raw), pairs=pairs, quick=quick, seed=seed, log=out.print)
 

@@ -86,3 +86,11 @@ def write_csv(path: Path, header: list[str], rows: Iterable[Iterable[object]]) -
             out.writerows(rows)
 
     atomic_write(path, w)
+
+
+def load_sweep_results(out_dir: Path):
+    """The results Dataset of a sweep folder."""
+    import xarray as xr
+
+    with xr.open_dataset(Path(out_dir) / "results.nc", engine="h5netcdf") as ds:
+        return ds.load()

@@ -1,8 +1,9 @@
 """One scenario end to end: build, run the loop, compute the truth, report. Wiring only.
 
-The models come from :mod:`imc.build`, the plant from :mod:`imc.plants`, the loop from
-:mod:`compensation.loop`, the truth from :mod:`imc.truth`, the reports from
-:mod:`imc.report`, the checkpoints from :mod:`imc.checkpoint`.
+The models come from :mod:`imc.wiring.build`, the plant from
+:mod:`imc.wiring.rendered_plant`, the loop from :mod:`compensation.loop`, the truth from
+:mod:`imc.wiring.truth`, the reports from :mod:`imc.outputs.report`, the checkpoints from
+:mod:`imc.wiring.checkpoint`.
 """
 
 from __future__ import annotations
@@ -15,13 +16,13 @@ from pathlib import Path
 import numpy as np
 
 from compensation.loop import simulate
-from imc import streams
-from imc.build import Models, build_loop, build_models
-from imc.checkpoint import ChunkStore
-from imc.plants import build_plant
-from imc.report import summarize, write_outputs
+from imc.outputs.report import summarize, write_outputs
 from imc.scenario import Scenario
-from imc.truth import compute_truth
+from imc.wiring import streams
+from imc.wiring.build import Models, build_loop, build_models
+from imc.wiring.checkpoint import ChunkStore
+from imc.wiring.rendered_plant import build_plant
+from imc.wiring.truth import compute_truth
 
 #: frames per checkpoint chunk
 CHECKPOINT_EVERY = 10
@@ -91,12 +92,12 @@ def run_scenario(sc: Scenario, out: Path, save_frames: bool = False, fresh: bool
     truth = compute_truth(m, res.record, res.trajectory)
     metrics = summarize(m, res, truth, parts, link_stats)
     if sc.metrics.blur_images and m.line_rate_hz is None:
-        from imc.blur import main_imager_study
+        from imc.wiring.blur import main_imager_study
 
         metrics["main_imager_blur"] = main_imager_study(m, res.trajectory, truth, out,
                                                         spp=sc.metrics.blur_spp)
     else:
-        from imc.blur import write_blur_npz
+        from imc.wiring.blur import write_blur_npz
 
         metrics["main_imager_blur"] = write_blur_npz(out / "blur.npz", truth, res.trajectory)
     frames = getattr(plant, "frames", None)

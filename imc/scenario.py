@@ -9,17 +9,24 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import typing
 from datetime import date, datetime, timezone
-from functools import cache, lru_cache
+from functools import lru_cache
 from pathlib import Path
 from typing import Annotated, ClassVar, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from compensation.registry import (
+    MAX_MAGNITUDE,
+    bool_at,
+    check_params,
+    expects_number,
+    short,
+)
 from correlator.optical import EFFECTS, JtocModel, SensorSpec, SlmSpec
-from imc.yamlload import YamlInputError, load_yaml, read_text, short
+from imc.yamlload import YamlInputError, load_yaml, read_text
+from scene import SCENE_KINDS
 
 
 class ScenarioError(ValueError):
@@ -34,8 +41,6 @@ def error_line(e: BaseException) -> str:
     return head if isinstance(e, ScenarioError) else f"{type(e).__name__}: {head}".rstrip(": ")
 
 
-#: largest magnitude of any number in a scenario (products of a few stay far from overflow)
-MAX_MAGNITUDE = 1e12
 #: the epochs imcsim can propagate: its orbit, sun and time models count nanoseconds in
 #: int64 (numpy datetime64[ns]: 1678-09-21 .. 2262-04-11), less a day for the run itself
 EPOCH_MIN = datetime(1678, 9, 22)
@@ -50,21 +55,6 @@ def _finite_magnitude(v):
     return v
 
 
-def _expects_number(annotation) -> bool:
-    """True if a field's type is int or float (optional, annotated or in a tuple)."""
-    if annotation in (int, float):
-        return True
-    return any(_expects_number(a) for a in typing.get_args(annotation)
-               if isinstance(a, type) or typing.get_args(a))
-
-
-def _bool_at(value) -> int | None:
-    """Index of the first true / false in ``value`` (a list or tuple, or 0 for a bare
-    bool); None when there is none."""
-    items = value if isinstance(value, list | tuple) else (value,)
-    return next((i for i, x in enumerate(items) if isinstance(x, bool)), None)
-
-
 class _Model(BaseModel):
     """Every section: unknown keys are errors, and every float is finite (no NaN, no inf)
     and of magnitude <= MAX_MAGNITUDE; true / false is not a number."""
@@ -74,10 +64,10 @@ class _Model(BaseModel):
     @field_validator("*", mode="before")
     @classmethod
     def _no_bool_numbers(cls, v, info):
-        at = _bool_at(v)
+        at = bool_at(v)
         if at is not None:
             field = cls.model_fields.get(info.field_name)
-            if field is not None and _expects_number(field.annotation):
+            if field is not None and expects_number(field.annotation):
                 where = f"@{at}@ " if isinstance(v, list | tuple) else ""  # the element
                 raise ValueError(f"{where}give a number, not true / false")
         return v
@@ -361,14 +351,10 @@ class GeoTiffConfig(_Model):
         return v
 
 
-SCENE_KINDS = ("procedural", "urban", "rural", "mountain", "waves", "calm_water", "geotiff")
-
-
 class SceneConfig(_Model):
     """The terrain tile centred on (lat, lon), rendered by Mitsuba."""
 
-    kind: Literal["procedural", "urban", "rural", "mountain", "waves", "calm_water",
-                  "geotiff"] = Field(
+    kind: Literal[SCENE_KINDS] = Field(
         "procedural", description="procedural (generic rural/suburban tile), one of the seed "
         "paper's classes (urban, rural, mountain with snow and clouds, waves, calm_water), "
         "or geotiff (user data)")
@@ -642,26 +628,8 @@ class CorrelatorConfig(_Model):
         return PipelineTiming(**t.model_dump(exclude={"enabled"}))
 
 
-def make_block(role: str, kind: str, params: dict, wired: dict | None = None):
-    """The block ``kind`` of ``role`` built from a scenario's parameters (validated and
-    converted by pydantic, nested dataclasses included) plus the ``wired`` ones the wiring
-    derives from the rest of the scenario."""
-    from compensation.registry import block_class
-
-    check_params(role, kind, params)
-    return _adapter(block_class(role, kind)).validate_python({**params, **(wired or {})})
-
-
-@cache
-def _adapter(cls):
-    """pydantic's validator of a block class, built once (building it costs ~5 ms)."""
-    from pydantic import TypeAdapter
-
-    return TypeAdapter(cls)
-
-
 @lru_cache(maxsize=1)
-def _version() -> str:
+def installed_version() -> str:
     """imcsim's installed version (read once: the metadata lookup costs ~3 ms)."""
     from importlib.metadata import PackageNotFoundError, version
 
@@ -669,118 +637,6 @@ def _version() -> str:
         return version("imcsim")
     except PackageNotFoundError:
         return "unknown"
-
-
-def _bad_number(value, path: str = "") -> tuple[str, object] | None:
-    """(path, value) of the first NaN, inf or too-large float inside a parameter value."""
-    if isinstance(value, float) and not abs(value) <= MAX_MAGNITUDE:
-        return path, value
-    if isinstance(value, list | tuple):
-        items = enumerate(value)
-    elif isinstance(value, dict):
-        items = value.items()
-    else:
-        return None
-    for k, v in items:
-        bad = _bad_number(v, f"{path}.{k}")
-        if bad is not None:
-            return bad
-    return None
-
-
-def _nested_problem(hint, value, path: str) -> tuple[str, str] | None:
-    """(dotted path, message) of the first key of ``value`` that a nested dataclass of
-    ``hint`` (itself, a list / tuple of it, optional) does not have, or of a true / false
-    given for one of its numbers; None when all is well."""
-    if isinstance(value, dict):
-        cls = next((a for a in (hint, *typing.get_args(hint)) if dataclasses.is_dataclass(a)),
-                   None)
-        if cls is None:
-            return None
-        names = {f.name for f in dataclasses.fields(cls) if f.init}
-        try:
-            hints = typing.get_type_hints(cls)
-        except Exception:  # noqa: BLE001 (an unresolvable hint: check the keys only)
-            hints = {}
-        for k, v in value.items():
-            if k not in names:
-                return (f"{path}.{short(str(k), 40)}",
-                        "unknown parameter (check the spelling; see docs/scenario.md)")
-            if isinstance(v, bool) and _expects_number(hints.get(k)):
-                return f"{path}.{k}", "give a number, not true / false"
-            bad = _nested_problem(hints.get(k), v, f"{path}.{k}")
-            if bad is not None:
-                return bad
-        return None
-    if isinstance(value, list | tuple):
-        args = [a for a in typing.get_args(hint) if a is not Ellipsis]
-        inner = next((a for a in args if dataclasses.is_dataclass(a)), None)
-        if inner is None:  # Optional[tuple[Line, ...]]: one level down
-            inner = next((b for a in args for b in typing.get_args(a)
-                          if dataclasses.is_dataclass(b)), None)
-        for i, v in enumerate(value):
-            bad = _nested_problem(inner, v, f"{path}.{i}")
-            if bad is not None:
-                return bad
-    return None
-
-
-def check_params(role: str, kind: str, params: dict) -> None:
-    """Validate a block's parameters against its class (pydantic on the dataclass); a
-    ValueError '@field@ message' names the offending parameter."""
-    from compensation.registry import block_class, kinds
-
-    try:
-        cls = block_class(role, kind)
-    except ValueError:
-        raise ValueError(f"@kind@ unknown {role} kind {kind!r}; choose one of "
-                         f"{', '.join(kinds(role))}") from None
-    wired = getattr(cls, "WIRED", ())
-    names = {f.name for f in dataclasses.fields(cls) if f.init}
-    try:
-        hints = typing.get_type_hints(cls)
-    except Exception:  # noqa: BLE001 (an unresolvable hint: no bool check for that class)
-        hints = {}
-    for key, value in params.items():
-        if key in wired:
-            raise ValueError(f"@{key}@ is set by imcsim from the rest of the scenario; "
-                             "leave it out")
-        if key not in names:
-            allowed = ", ".join(sorted(names - set(wired)))
-            raise ValueError(f"@{short(key, 40)}@ unknown parameter of {role} kind {kind!r} "
-                             f"(allowed: {allowed})")
-        if _expects_number(hints.get(key)):
-            at = _bool_at(value)
-            if at is not None:
-                where = f"{key}.{at}" if isinstance(value, list | tuple) else key
-                raise ValueError(f"@{where}@ give a number, not true / false")
-        nested = _nested_problem(hints.get(key), value, key)
-        if nested is not None:
-            raise ValueError(f"@{nested[0]}@ {nested[1]}")
-        bad = _bad_number(value)
-        if bad is not None:
-            raise ValueError(f"@{key}{bad[0]}@ must be a finite number of magnitude <= "
-                             f"{MAX_MAGNITUDE:g} (got {short(bad[1])})")
-    try:
-        block = _adapter(cls).validate_python(dict(params))
-    except ValidationError as e:
-        err = e.errors()[0]
-        msg = err["msg"].removeprefix("Value error, ")
-        first = msg.split(" ", 1)[0]
-        name = ".".join(str(p) for p in err["loc"]) or (first if first in names else "kind")
-        raise ValueError(f"@{name}@ {msg}") from None
-    for key in params:  # text such as "1e400" becomes inf in pydantic's lax mode
-        value = getattr(block, key, None)
-        if dataclasses.is_dataclass(value) and not isinstance(value, type):
-            value = dataclasses.asdict(value)
-        elif isinstance(value, list | tuple):
-            value = [dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v for v in value]
-        elif isinstance(value, np.ndarray):
-            value = value.tolist()
-        bad = _bad_number(value)
-        if bad is not None:
-            raise ValueError(f"@{key}{bad[0]}@ must be a finite number of magnitude <= "
-                             f"{MAX_MAGNITUDE:g} (got {short(params[key])})")
 
 
 class BlockConfig(_Model):
@@ -912,7 +768,7 @@ class MetricsConfig(_Model):
                           "(a square number: the stratified sampler rounds to one)")
 
 
-#: the top-level keys of metrics.json (imc/report.py summarize and imc/pipeline.py); an
+#: the top-level keys of metrics.json (imc/outputs/report.py summarize and imc/pipeline.py); an
 #: expectation's metric path starts with one of them
 METRIC_SECTIONS = ("scenario", "frames", "blocks", "compensation_enabled",
                    "without_compensation", "with_compensation", "rms_reduction", "tracker",
@@ -959,7 +815,7 @@ class BoundConfig(_Model):
         return " and ".join(parts)
 
 
-def _check_metric_path(path: str) -> str:
+def check_metric_path(path: str) -> str:
     parts = path.split(".")
     if not path or any(not p for p in parts):
         raise ValueError(f"metric path {path!r} is empty or has an empty part; write "
@@ -991,7 +847,7 @@ class Scenario(_Model):
     @classmethod
     def _metric_paths(cls, v: dict) -> dict:
         for path in v:
-            _check_metric_path(path)
+            check_metric_path(path)
         return v
 
     @field_validator("name")
@@ -1043,7 +899,7 @@ class Scenario(_Model):
 
     def digest(self) -> str:
         """Stable hash of the full (defaults filled) scenario and imcsim version, for resuming."""
-        ver = _version()
+        ver = installed_version()
         # expectations judge a run's metrics, they do not change the run
         return hashlib.sha256((ver + self.model_dump_json(exclude={"expect"})).encode()
                               ).hexdigest()[:16]
@@ -1079,7 +935,7 @@ def user_path(loc: tuple, data: object) -> tuple:
     return loc
 
 
-def _format_validation_error(err: ValidationError, source: str, data: object = None) -> str:
+def format_validation_error(err: ValidationError, source: str, data: object = None) -> str:
     errors = err.errors()
     first = errors[0]
     loc = tuple(first["loc"])
@@ -1109,7 +965,7 @@ def parse_scenario(data: object, source: str = "scenario") -> Scenario:
     try:
         return Scenario.model_validate(data)
     except ValidationError as e:
-        raise ScenarioError(_format_validation_error(e, source, data)) from None
+        raise ScenarioError(format_validation_error(e, source, data)) from None
     except RecursionError:
         raise ScenarioError(f"{source}: nested deeper than the schema") from None
 

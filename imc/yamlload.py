@@ -14,6 +14,8 @@ from pathlib import Path
 
 import yaml
 
+from compensation.registry import short
+
 #: a scenario needs at most ~8 levels (compensation.controller.lines, jitter harmonics)
 MAX_DEPTH = 32
 #: values in the document once every alias is expanded (a scenario holds a few hundred)
@@ -35,16 +37,6 @@ class YamlInputError(ValueError):
             super().__init__(f"{what} at {where}: {problem}" if where else f"{what}: {problem}")
         else:
             super().__init__(f"{where}: {problem}" if where else problem)
-
-
-def short(value: object, limit: int = 60) -> str:
-    """``repr(value)`` cut to about ``limit`` characters (middle elided), on one line."""
-    text = value if isinstance(value, str) else repr(value)
-    text = " ".join(str(text).split())
-    if len(text) <= limit:
-        return text
-    keep = max(8, (limit - 5) // 2)
-    return f"{text[:keep]} ... {text[-keep:]} ({len(text)} characters)"
 
 
 class StrictLoader(yaml.SafeLoader):

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from orbit.attitude import Attitude, _perp, _unit
+from orbit.attitude import Attitude, perp, unit_vector
 from orbit.frames import LocalFrame, eci_to_ecef_matrix, eci_to_ecef_rate, gmst_rad
 from orbit.kepler import DEFAULT_EPOCH, EarthOrbit
 
@@ -129,7 +129,7 @@ class AircraftAttitude(Attitude):
     def enu_from_body(self, orbit: Aircraft) -> np.ndarray:
         """Nominal rotation (3, 3) whose columns are x_b, y_b, z_b in ENU (constant)."""
         z = self.line_of_sight_enu(orbit)
-        x = _unit(_perp(orbit.velocity_enu_mps, z))
+        x = unit_vector(perp(orbit.velocity_enu_mps, z))
         return np.stack([x, np.cross(z, x), z], axis=-1)
 
     def line_of_sight_eci(self, orbit: Aircraft, t_s) -> np.ndarray:
@@ -141,7 +141,7 @@ class AircraftAttitude(Attitude):
         b = self.nominal_eci_from_body(orbit, t_s)
         z = b[..., :, 2]
         v = np.einsum("...ij,j->...i", b, self.enu_from_body(orbit).T @ orbit.velocity_enu_mps)
-        return -_perp(v, z)
+        return -perp(v, z)
 
     def nominal_eci_from_body(self, orbit: Aircraft, t_s) -> np.ndarray:
         """Nominal rotations (..., 3, 3) whose columns are x_b, y_b, z_b in ECI."""

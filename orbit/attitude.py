@@ -40,11 +40,11 @@ from orbit.kepler import EarthOrbit, Orbit
 _DT_S = 1e-3  # central-difference step for nominal rates (the pointing rotates < 2 mrad/s)
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
+def unit_vector(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def _perp(v: np.ndarray, z: np.ndarray) -> np.ndarray:
+def perp(v: np.ndarray, z: np.ndarray) -> np.ndarray:
     return v - np.sum(v * z, axis=-1, keepdims=True) * z
 
 
@@ -111,11 +111,11 @@ class Attitude:
         if self.mode == "target":
             ecef_to_eci = np.swapaxes(eci_to_ecef_matrix(gmst_rad(orbit.epoch_utc, t)), -1, -2)
             target = np.einsum("...ij,j->...i", ecef_to_eci, np.asarray(self.target_ecef_m))
-            return _unit(target - r)
-        z0 = _unit(-r)
+            return unit_vector(target - r)
+        z0 = unit_vector(-r)
         if self.mode == "nadir":
             return z0
-        x0 = _unit(_perp(v, z0))
+        x0 = unit_vector(perp(v, z0))
         y0 = np.cross(z0, x0)
         ph, th = np.deg2rad(self.roll_deg), np.deg2rad(self.pitch_deg)
         los_lvlh = np.array([np.sin(th), -np.sin(ph) * np.cos(th), np.cos(ph) * np.cos(th)])
@@ -140,7 +140,7 @@ class Attitude:
             raise ValueError("the line of sight misses the Earth")
         p = r + rng_m[..., None] * z
         earth = OMEGA_EARTH_RAD_S * np.stack([-p[..., 1], p[..., 0], 0.0 * p[..., 2]], axis=-1)
-        return _perp(earth - v - rng_m[..., None] * zdot, z)
+        return perp(earth - v - rng_m[..., None] * zdot, z)
 
     def nominal_eci_from_body(self, orbit: EarthOrbit, t_s) -> np.ndarray:
         """Nominal (jitter-free) rotations (..., 3, 3) whose columns are x_b, y_b, z_b in ECI."""
@@ -150,8 +150,8 @@ class Attitude:
             x = -self.boresight_image_flow_eci(orbit, t)
         else:
             _, v = orbit.state_eci(t)
-            x = _perp(v, z)
-        x = _unit(x)
+            x = perp(v, z)
+        x = unit_vector(x)
         return np.stack([x, np.cross(z, x), z], axis=-1)
 
     def _jitter_matrix(self, t: np.ndarray) -> np.ndarray:
@@ -191,7 +191,7 @@ class Attitude:
         t = np.asarray(t_s, dtype=np.float64)
         r, _ = orbit.state_eci(t)
         z = self.line_of_sight_eci(orbit, t)
-        return np.rad2deg(np.arccos(np.clip(np.sum(-_unit(r) * z, axis=-1), -1.0, 1.0)))
+        return np.rad2deg(np.arccos(np.clip(np.sum(-unit_vector(r) * z, axis=-1), -1.0, 1.0)))
 
 
 def orbit_looking_at(lat_deg: float, lon_deg: float, altitude_m: float, inclination_deg: float,

@@ -34,9 +34,9 @@ import numpy as np
 import scipy.fft as sfft
 from scipy import ndimage
 
+from scene import SCENE_CLASSES
 from scene.terrain import Terrain, fractal_noise, procedural_terrain
 
-SCENE_CLASSES = ("urban", "rural", "mountain", "waves", "calm_water")
 #: default RMS relief (m) of each class when the scenario does not set one
 DEFAULT_RELIEF_M = {"urban": 2.0, "rural": 8.0, "mountain": None, "waves": 0.0,
                     "calm_water": 0.0, "procedural": 15.0}
@@ -112,6 +112,16 @@ class CloudLayer:
         jj, ii = np.meshgrid(np.arange(m), np.arange(m))
         uv = np.column_stack([(jj.ravel() + 0.5) / m, (ii.ravel() + 0.5) / m])
         return verts, faces, uv
+
+
+#: clouds whose layer would need more cells than this per side get coarser cells
+MAX_CLOUD_CELLS = 4096
+
+
+def cloud_cell_m(extent_m: float, cell_m: float) -> float:
+    """A cloud layer's cell size, m: ``cell_m``, coarsened so that a layer ``extent_m`` wide
+    has at most :data:`MAX_CLOUD_CELLS` cells a side."""
+    return max(cell_m, extent_m / MAX_CLOUD_CELLS)
 
 
 def cloud_layer(size_m: float, cell_m: float, cover: float, base_m: float,

@@ -458,10 +458,20 @@ def write_geotiff(path: str | Path, data: np.ndarray, x0: float, y0: float, dx: 
     import rasterio
     from affine import Affine
 
+    from rasterio.dtypes import check_dtype
+
     del geographic
     arr = np.asarray(data)
     if arr.ndim == 2:
         arr = arr[None]
+    if arr.ndim != 3 or arr.size == 0:
+        raise ValueError(f"data: a GeoTIFF needs a non-empty (H, W) or (bands, H, W) array, "
+                         f"got shape {arr.shape}")
+    if not check_dtype(arr.dtype):
+        hint = ("convert a mask with data.astype(np.uint8)" if arr.dtype == bool else
+                "convert it to uint8, int16, int32, float32 or float64")
+        raise ValueError(f"data: GeoTIFF cannot store dtype {arr.dtype} (GDAL's types only); "
+                         f"{hint}")
     profile = {"driver": "GTiff", "height": arr.shape[1], "width": arr.shape[2],
                "count": arr.shape[0], "dtype": arr.dtype,
                "crs": f"EPSG:{crs}" if isinstance(crs, int) else crs,

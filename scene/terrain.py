@@ -64,6 +64,14 @@ class Terrain:
         return (np.abs(east_m) <= w / 2.0 - margin_m) & (np.abs(north_m) <= h / 2.0 - margin_m)
 
 
+
+def flat_terrain(size_m: float, dem_spacing_m: float) -> Terrain:
+    """A flat, textureless tile of side ``size_m`` m on a DEM grid of ``dem_spacing_m`` m:
+    the stand-in that ``imc validate`` checks a large tile's geometry on."""
+    m = int(round(size_m / dem_spacing_m)) + 1
+    return Terrain(np.zeros((16, 16), np.float32), size_m / 16.0,
+                   np.zeros((m, m), np.float32), dem_spacing_m)
+
 def fractal_noise(
     shape: tuple[int, int], beta: float, rng: np.random.Generator, cutoff_cycles: float = 1.0
 ) -> np.ndarray:

@@ -24,7 +24,7 @@ def quickstart():
 @pytest.fixture(scope="session")
 def camera_model(quickstart):
     """The quickstart camera model (target staring, 2 Hz pitch jitter)."""
-    from imc.build import build_models
+    from imc.wiring.build import build_models
 
     return build_models(quickstart).camera
 
@@ -64,7 +64,7 @@ def tiny_base() -> dict:
 
 def tiny_sweep(**changes):
     """A sweep of tiny_base: 2 gains x 2 jitter frequencies x 2 seeds."""
-    from imc.sweep import SweepConfig
+    from imc.workflow.sweep import SweepConfig
 
     spec = {"name": "tiny", "base": tiny_base(), "seeds": 2,
             "axes": {"compensation.controller.gain": [0.3, 0.8],
@@ -76,8 +76,8 @@ def tiny_sweep(**changes):
 @pytest.fixture(scope="session")
 def tiny_run(tmp_path_factory):
     """The tiny sweep run in process, once."""
-    from imc.distribute import runner
-    from imc.sweep import expand, run_sweep
+    from imc.workflow.distribute import runner
+    from imc.workflow.sweep import expand, run_sweep
 
     out = tmp_path_factory.mktemp("sweep")
     sw = expand(tiny_sweep())

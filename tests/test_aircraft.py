@@ -136,8 +136,8 @@ def _flight(**changes) -> dict:
 def test_flight_test_scenario_geometry():
     """The paper's camera: 0.45 m pixels from 2,400 m, 149 px/s of flow along the rows (v f /
     h within the ground's relief: 0.3 % per 7 m), heading east, nadir."""
-    from imc.build import build_models
-    from imc.report import geometry_summary
+    from imc.outputs.report import geometry_summary
+    from imc.wiring.build import build_models
 
     sc = parse_scenario(_flight(**{"scene.size_m": 512, "scene.texel_m": 0.5,
                                    "duration_s": 1.0}), "flight")
@@ -160,7 +160,7 @@ def test_flight_test_scenario_geometry():
 def test_impossible_flights_are_refused_in_one_line(changes, field):
     """Below the highest terrain (or a mountain's cloud tops), an image that crosses the
     tracker within one frame, a staring aircraft, a missing height: one line naming it."""
-    from imc.build import build_models
+    from imc.wiring.build import build_models
 
     data = _flight(**{"scene.size_m": 512, "scene.texel_m": 0.5, "duration_s": 1.0,
                       **changes})

@@ -115,7 +115,8 @@ def test_correlator_reuses_reference_and_tracker_follows_a_frame():
 
 
 # ----------------------------------------------------------------- issue 3: the new correlator
-from correlator.testimages import crlb_px, texture_pairs  # noqa: E402
+from correlator.bounds import crlb_px  # noqa: E402
+from correlator.testimages import texture_pairs  # noqa: E402
 
 
 @pytest.mark.parametrize("subpixel", ["fourier", "gradient"])
@@ -209,7 +210,7 @@ def test_joint_plane_cross_term_equals_the_digital_cross_correlation():
 
 
 def test_benchmark_scoring_counts_success_and_false_valid():
-    from correlator.bench import score
+    from imc.studies.correlator_peers import score
 
     d = np.zeros((4, 2))
     shift = np.array([[0.1, 0.0], [0.0, 0.7], [0.0, -0.1], [2.0, 0.0]])

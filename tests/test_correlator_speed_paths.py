@@ -203,13 +203,13 @@ def test_scenario_passes_the_trusted_prediction_to_the_tracker():
     import yaml
     from conftest import QUICKSTART
 
-    from imc.build import _correlator_options
     from imc.scenario import ScenarioError, parse_scenario
+    from imc.wiring.build import correlator_options
 
     data = yaml.safe_load(QUICKSTART.read_text())
-    assert _correlator_options(parse_scenario(data)).trust_prediction_px is None
+    assert correlator_options(parse_scenario(data)).trust_prediction_px is None
     data["correlator"]["trust_prediction_px"] = 1.5
-    assert _correlator_options(parse_scenario(data)).trust_prediction_px == 1.5
+    assert correlator_options(parse_scenario(data)).trust_prediction_px == 1.5
     data["correlator"]["trust_prediction_px"] = 0.0
     with pytest.raises(ScenarioError, match="correlator.trust_prediction_px"):
         parse_scenario(data)

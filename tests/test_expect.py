@@ -10,8 +10,8 @@ from conftest import ROOT, tiny_base
 from typer.testing import CliRunner
 
 from imc.cli import app
-from imc.expect import CaseResult, Outcome, judge, lookup, write_junit
 from imc.scenario import METRIC_SECTIONS, BoundConfig, ScenarioError, parse_scenario
+from imc.workflow.expect import CaseResult, Outcome, judge, lookup, write_junit
 
 cli = CliRunner()
 METRICS = {"with_compensation": {"rms_total_px": 0.02, "rms_px": [0.015, 0.013]},

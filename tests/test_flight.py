@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import yaml
 
-from imc.build import build_models
-from imc.flight import FlightConfig, run_session
 from imc.scenario import parse_scenario
+from imc.studies.flight import FlightConfig, run_session
+from imc.wiring.build import build_models
 
 FLIGHT = Path(__file__).resolve().parents[1] / "scenarios" / "flight_test.yaml"
 FRAMES = 48

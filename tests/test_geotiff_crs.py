@@ -202,3 +202,11 @@ def test_unusable_files_and_paths_are_one_line(tmp_path):
         ds.write(np.ones((1, 32, 32), np.uint8))
     with pytest.raises(GeoTiffError, match="no CRS"):
         place_geotiff(tmp_path / "nocrs.tif", None, 2.0)
+
+
+@pytest.mark.parametrize("dtype", [bool, np.float16])
+def test_write_geotiff_refuses_a_dtype_gdal_cannot_store(tmp_path, dtype):
+    from scene.geotiff import write_geotiff
+
+    with pytest.raises(ValueError, match=f"dtype {np.dtype(dtype)}"):
+        write_geotiff(tmp_path / "m.tif", np.zeros((4, 4), dtype), 0.0, 4.0, 1.0, 1.0)

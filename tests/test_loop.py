@@ -17,14 +17,14 @@ from conftest import QUICKSTART, ROOT
 
 from compensation.actuators import IdealStage, PiezoStage
 from compensation.analytic import LoopModel, design_lines, measured_rejection
+from compensation.analytic_plant import AnalyticPlant, sinusoids
 from compensation.controllers import Integrator, KalmanPredictor, Line
 from compensation.estimators import MeanEstimator
 from compensation.loop import Timeline, simulate
-from compensation.plants import AnalyticPlant, sinusoids
 from compensation.transport import Transport
-from imc.build import build_loop, build_models
 from imc.pipeline import run_scenario
 from imc.scenario import ScenarioError, parse_scenario
+from imc.wiring.build import build_loop, build_models
 
 
 @pytest.mark.parametrize("controller, actuator, latency_frames", [
@@ -149,7 +149,7 @@ def test_the_residual_psf_stays_a_small_image_when_the_loop_diverges():
     thousands of 0.02 px bins a side (the sweep's 20 GB point)."""
     from types import SimpleNamespace
 
-    from imc.blur import PSF_BIN_PX, PSF_MAX_BINS, window_blur
+    from imc.wiring.blur import PSF_BIN_PX, PSF_MAX_BINS, window_blur
 
     t = np.linspace(0.0, 1.0, 4000)
     window = (t // 0.25).astype(int)

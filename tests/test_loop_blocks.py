@@ -116,7 +116,7 @@ def test_piezo_update_rate_makes_room_for_the_drive_notch_and_old_states_restore
     4 x the drive notch's frequencies; a state written before a field was added restores
     with that field's default."""
     from compensation.state import from_arrays, to_arrays
-    from imc.build import piezo_update_hz
+    from imc.wiring.build import piezo_update_hz
 
     assert piezo_update_hz(1000.0, 300.0) == 6000.0
     assert piezo_update_hz(1000.0, 300.0, 1600.0) == 7000.0

@@ -264,9 +264,9 @@ def test_scenario_loop_runs_through_the_device_timing_and_serial_link(tmp_path):
     import yaml
     from conftest import ROOT
 
-    from imc.build import build_models
     from imc.pipeline import run_scenario
     from imc.scenario import parse_scenario
+    from imc.wiring.build import build_models
 
     raw = yaml.safe_load((ROOT / "scenarios" / "optical.yaml").read_text())
     raw["duration_s"] = 0.25

@@ -13,7 +13,7 @@ from conftest import tiny_base
 from typer.testing import CliRunner
 
 from imc.cli import app
-from imc.rerun_log import ENTITY_PATHS
+from imc.outputs.rerun_log import ENTITY_PATHS
 
 cli = CliRunner()
 RERUN = str(Path(sys.executable).parent / "rerun")
@@ -89,7 +89,7 @@ def test_imc_view_needs_a_recording(tmp_path):
 def test_sweep_report_has_lines_and_heat_maps(tiny_run, tmp_path):
     import shutil
 
-    from imc.htmlreport import write_sweep_report
+    from imc.outputs.htmlreport import write_sweep_report
 
     _, out, _ = tiny_run
     shutil.copytree(out, tmp_path / "s")

@@ -110,7 +110,7 @@ def test_block_parameters_are_finite_numbers_too():
 
 
 def test_optical_model_errors_name_the_scenario_path():
-    from imc.build import build_models
+    from imc.wiring.build import build_models
 
     sc = parse_scenario(_quickstart(**{"correlator.method": "optical",
                                        "correlator.subpixel": "com",
@@ -220,9 +220,9 @@ def test_600_s_at_100_khz_is_refused_before_anything_is_built(tmp_path):
 
 
 def test_the_largest_tile_is_refused_with_the_estimate(tmp_path, monkeypatch):
-    import imc.budget
+    import imc.wiring.budget
 
-    monkeypatch.setattr(imc.budget, "memory_budget_bytes", lambda: 8e9)
+    monkeypatch.setattr(imc.wiring.budget, "memory_budget_bytes", lambda: 8e9)
     p = _write(tmp_path, "scene: {size_m: 6553.6, texel_m: 0.4, dem_spacing_m: 6.4}\n")
     res = runner.invoke(app, ["validate", str(p)])
     _one_line_error(res, "scene.size_m / scene.texel_m", "16,384 texels", "GB", "--force")
@@ -233,7 +233,7 @@ def test_the_largest_tile_is_refused_with_the_estimate(tmp_path, monkeypatch):
 
 
 def test_validate_prints_the_estimate_and_stays_light():
-    from imc.budget import estimate_run
+    from imc.wiring.budget import estimate_run
 
     res = runner.invoke(app, ["validate", str(ROOT / "scenarios" / "ikonos_tdi_scan.yaml")])
     assert res.exit_code == 0, res.output
@@ -264,7 +264,7 @@ def test_estimate_bounds_a_measured_run(tmp_path, fidelity, blur_images):
                           timeout=300, env={**os.environ, "RERUN_TELEMETRY_ENABLED": "0"})
     peak, rc = proc.stdout.split("PEAK")[1].split()
     assert rc == "0", proc.stderr
-    from imc.budget import estimate_run
+    from imc.wiring.budget import estimate_run
 
     est = estimate_run(parse_scenario(data))
     assert float(peak) <= est.peak_bytes <= 3.0 * float(peak)
@@ -385,7 +385,7 @@ def test_a_killed_write_leaves_a_marked_temp_file_the_next_run_removes(tmp_path)
 
 # -------------------------------------------------------------------------- checkpoints
 def _store(tmp_path, digest="d1", warn=None):
-    from imc.checkpoint import ChunkStore
+    from imc.wiring.checkpoint import ChunkStore
 
     return ChunkStore(tmp_path / "checkpoint", digest, warn)
 

@@ -74,8 +74,8 @@ def test_new_sections_name_the_field_and_the_fix(data, words):
 
 
 def test_bad_tle_is_a_scenario_error():
-    from imc.build import build_models
     from imc.scenario import ScenarioError, parse_scenario
+    from imc.wiring.build import build_models
 
     sc = parse_scenario({"orbit": {"kind": "tle", "tle_line1": "1 25544U garbage",
                                    "tle_line2": "2 25544 garbage"}})
@@ -162,7 +162,7 @@ def test_scenario_reference_is_current():
 
 
 def test_scene_kinds_sun_and_clouds_from_the_scenario():
-    from imc.build import build_scene
+    from imc.wiring.build import build_scene
 
     auto = parse_scenario(_quickstart_with(**{"scene.sun_elevation_deg": None,
                                              "scene.sun_azimuth_deg": None}))

@@ -123,7 +123,7 @@ def test_rendered_frame_is_textured_and_lit(small_renderer, camera_model):
 _TINY_RENDER = """
 import numpy as np
 from camera.geometry import FocalPlane
-from imc.build import build_models
+from imc.wiring.build import build_models
 from imc.scenario import load_scenario
 from scene.kernel import Renderer, Sun
 from scene.pinhole import ray_keyframes

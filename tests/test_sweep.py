@@ -13,8 +13,8 @@ from conftest import QUICKSTART, ROOT, tiny_base, tiny_sweep
 from typer.testing import CliRunner
 
 from imc.cli import app
-from imc.distribute import runner
-from imc.sweep import AxisRange, SweepError, expand, load_sweep, run_sweep
+from imc.workflow.distribute import runner
+from imc.workflow.sweep import AxisRange, SweepError, expand, load_sweep, run_sweep
 
 cli = CliRunner()
 

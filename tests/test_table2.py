@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from imc.table2 import Table2Config, _shifts, run_class
+from imc.studies.table2 import Table2Config, _shifts, run_class
 
 
 def test_shift_draws_respect_range_and_overlap():

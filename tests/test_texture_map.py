@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import scipy.fft as sfft
 
-from correlator.testimages import correlation_bound_px
-from correlator.testimages import crlb_px as shift_crlb_px
-from imc.texture_map import (
+from correlator.bounds import correlation_bound_px
+from correlator.bounds import crlb_px as shift_crlb_px
+from imc.studies.texture_map import (
     TextureMapConfig,
     bin_fine,
     motion_blur,
@@ -120,7 +120,7 @@ def test_block_error_is_taken_over_successful_trials():
     """A trial called valid but off by > 0.5 px is wrong, not part of the block's error; an
     invalid one is neither; a block with fewer than half its trials successful is flagged
     (NaN error and prediction) while its bound stays."""
-    from imc.texture_map import BlockResult
+    from imc.studies.texture_map import BlockResult
 
     errors = np.array([[0.01, -0.01], [-0.01, 0.01], [0.8, 0.0], [0.0, 0.0]])
     valid = np.array([True, True, True, False])

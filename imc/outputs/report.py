@@ -8,9 +8,9 @@ import numpy as np
 
 from compensation.loop import LoopResult
 from compensation.metrics import residual_metrics
-from imc.build import LoopParts, Models
 from imc.io import write_csv, write_json, write_npz
-from imc.truth import Truth
+from imc.wiring.build import LoopParts, Models
+from imc.wiring.truth import Truth
 
 
 def _floats(v) -> list[float | None]:
@@ -188,11 +188,11 @@ def write_outputs(m: Models, res: LoopResult, truth: Truth, metrics: dict, out: 
                   ref_corners=ref_corners, true_shift_px=truth.meas_px,
                   exposure_s=np.array(m.exposure_s))
         written.append(out / "frames.npz")
-    from imc.figures import write_series
+    from imc.outputs.figures import write_series
 
     written.append(write_series(out, m, res, truth, loop_model, frames, ref_corners))
     if rerun:
-        from imc.rerun_log import write_recording
+        from imc.outputs.rerun_log import write_recording
 
         write_recording(out / "recording.rrd", m, res, truth, frames, ref_corners)
         written.append(out / "recording.rrd")

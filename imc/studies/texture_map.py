@@ -41,9 +41,9 @@ import scipy.fft as sfft
 
 from camera.geometry import FocalPlane
 from camera.motion import CameraModel
+from correlator.bounds import correlation_bound_px, crlb_px
 from correlator.core import measure_shift
-from correlator.testimages import correlation_bound_px, crlb_px
-from imc import streams
+from imc.wiring import streams
 from orbit.aircraft import Aircraft, AircraftAttitude
 from orbit.frames import LocalFrame
 from scene.terrain import Terrain

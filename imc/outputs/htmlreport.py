@@ -10,8 +10,8 @@ from collections.abc import Iterable, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 
-from imc.figures import Figure, run_figures, sweep_figures
-from imc.io import atomic_write
+from imc.io import atomic_write, load_sweep_results
+from imc.outputs.figures import Figure, run_figures, sweep_figures
 
 CSS = """
 body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;color:#222;padding:0 1em}
@@ -112,10 +112,8 @@ def write_run_report(run_dir: Path) -> Path:
 
 def write_sweep_report(sweep_dir: Path) -> Path:
     """report.html and figures/*.png of a sweep folder (results.nc, sweep.json)."""
-    from imc.sweep import load_results
-
     sweep_dir = Path(sweep_dir)
-    ds = load_results(sweep_dir)
+    ds = load_sweep_results(sweep_dir)
     meta = json.loads((sweep_dir / "sweep.json").read_text())
     metrics = json.loads(ds.attrs.get("metrics", "[]"))
     status = ds["status"].values.ravel()

@@ -8,7 +8,7 @@ costs per texel, per pixel and per frame (measured on imcsim's own generators an
 ``/usr/bin/time -v`` runs; see tests/test_robustness.py), not guarantees.
 
 ``imc validate`` itself stays cheap: above :data:`LIGHT_TEXELS` it checks the geometry on a
-flat stand-in of the tile (:func:`flat_stand_in`: same size and DEM grid) instead of
+flat stand-in of the tile (:func:`scene.terrain.flat_terrain`: same size and DEM grid) instead of
 generating the terrain, and reads a GeoTIFF decimated; ``imc run`` checks the geometry again
 on the real terrain before the first frame.
 """
@@ -50,7 +50,7 @@ RECORD_BYTES_PER_FRAME_BLOCK = 260.0
 CORRELATOR_BYTES_PER_PX = 48.0
 #: the optical emulation: bytes per sensor / SLM pixel of each block in a batch
 OPTICAL_BYTES_PER_PX = 40.0
-#: metrics.blur_images: the side of the rendered patches (imc.blur), px; the figure and the
+#: metrics.blur_images: the side of the rendered patches (imc.wiring.blur), px; the figure and the
 #: slanted edge's terrain, bytes (measured: +110-430 MB over the run without them; the 0.1 s
 #: run of tests/test_robustness.py peaks at 937-942 MB with them, 439-516 MB without)
 BLUR_PATCH_PX = 192
@@ -121,8 +121,8 @@ def tile_texels(sc: Scenario) -> int:
 
 
 def _cloud_cells(sc: Scenario) -> int:
-    from imc.build import MAX_CLOUD_CELLS
     from imc.scenario import CloudsConfig
+    from scene.classes import cloud_cell_m
 
     s = sc.scene
     cfg = s.clouds if s.clouds is not None else (CloudsConfig() if s.kind == "mountain" else None)
@@ -130,7 +130,7 @@ def _cloud_cells(sc: Scenario) -> int:
         return 0
     relief = s.relief_rms_m if s.relief_rms_m is not None else 0.04 * s.size_m
     extent = s.size_m + 3.0 * (cfg.base_height_m + cfg.thickness_m + 6.0 * relief)
-    cell = max(cfg.cell_m, extent / MAX_CLOUD_CELLS)
+    cell = cloud_cell_m(extent, cfg.cell_m)
     return (int(round(extent / cell)) + 1) ** 2
 
 
@@ -145,7 +145,7 @@ def _jitter_components(sc: Scenario) -> int:
 
 
 def _truth_samples(sc: Scenario) -> float:
-    """Samples of the main imager's truth (imc.truth.compute_truth)."""
+    """Samples of the main imager's truth (imc.wiring.truth.compute_truth)."""
     t, mi = sc.camera.tracker, sc.camera.main_imager
     span = max(sc.duration_s - mi.start_s, 0.0)
     per_frame = 1.0 / t.frame_rate_hz / sc.metrics.samples_per_frame
@@ -235,7 +235,7 @@ def estimate_run(sc: Scenario) -> RunEstimate:
         parts["plant"] = (px * (64.0 + 8.0 * n_key) + 96.0 * frames * 4
                           + 24.0 * (t.rows + 2 * reach) * (t.cols + 2 * reach))
     if sc.metrics.blur_images and sc.camera.main_imager.kind == "frame":
-        # imc.blur.main_imager_study: Mitsuba (whatever the plant), the tile's texture, two
+        # imc.wiring.blur.main_imager_study: Mitsuba (whatever the plant), the tile's texture, two
         # BLUR_PATCH_PX films at metrics.blur_spp and the figure
         base = RENDER_BASE_BYTES
         parts["blur images"] = (BLUR_IMAGES_BYTES + 8.0 * texels
@@ -306,14 +306,3 @@ def _fields_of(sc: Scenario, part: str) -> str:
                 "plant's motion maps and margins; attitude.mode, attitude.jitter)")
     return part
 
-
-def flat_stand_in(size_m: float, dem_spacing_m: float):
-    """A flat tile of the scenario's size and DEM grid (no texture): what ``imc validate``
-    checks the geometry on when the full terrain is above LIGHT_TEXELS."""
-    import numpy as np
-
-    from scene.terrain import Terrain
-
-    m = int(round(size_m / dem_spacing_m)) + 1
-    return Terrain(np.zeros((16, 16), np.float32), size_m / 16.0,
-                   np.zeros((m, m), np.float32), dem_spacing_m)

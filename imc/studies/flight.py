@@ -42,9 +42,9 @@ import numpy as np
 from camera.geometry import FocalPlane, project
 from camera.motion import CameraModel
 from correlator.tracker import BlockTracker
-from imc import streams
-from imc.build import Models, frame_seeds
-from imc.plants import KEYFRAMES, expose_frame
+from imc.wiring import streams
+from imc.wiring.build import Models, frame_seeds
+from imc.wiring.rendered_plant import KEYFRAMES, expose_frame
 
 Log = Callable[[str], None]
 

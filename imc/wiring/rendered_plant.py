@@ -6,18 +6,18 @@ model, warped by the true motion field (affine, from the camera model) and the s
 over the exposure, the optics and the sensor noise applied, in numpy; both are tracked by the
 real correlator (BlockTracker), cut where orbit and attitude predict the blocks. ``analytic``:
 no images, the true block shifts plus the correlator's predicted noise
-(compensation.plants.AnalyticPlant). The loop code is the same for all three.
+(compensation.analytic_plant.AnalyticPlant). The loop code is the same for all three.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from compensation.analytic_plant import AnalyticPlant
 from compensation.blocks import BlockMeasurements
-from compensation.plants import AnalyticPlant
 from correlator.tracker import BlockTracker, extract_blocks
-from imc import streams
-from imc.build import Models, frame_seeds, predicted_px
+from imc.wiring import streams
+from imc.wiring.build import Models, frame_seeds, predicted_px
 
 #: a block's predicted deformation (px across it) beyond which the tracker resamples the
 #: current frame through it (long stares), instead of cutting a plain block

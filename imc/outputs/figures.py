@@ -23,8 +23,8 @@ from imc.io import atomic_write, write_npz
 
 if TYPE_CHECKING:
     from compensation.loop import LoopResult
-    from imc.build import Models
-    from imc.truth import Truth
+    from imc.wiring.build import Models
+    from imc.wiring.truth import Truth
 
 #: most samples of the uniform series (a 10 s run at 100 Hz x 8: 8,000)
 MAX_SERIES = 20_000

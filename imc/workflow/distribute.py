@@ -27,7 +27,6 @@ def warm_up() -> str:
     compiled kernels) in a worker before its first point, so the points' figures are the
     runs' own and the import cost is paid once, at the cluster's start. Returns the pid."""
     import imc.pipeline  # noqa: F401
-    import imc.sweep  # noqa: F401
     from compensation import registry  # noqa: F401
     from correlator import kernels  # noqa: F401
 

@@ -28,8 +28,8 @@ from imc.io import atomic_write
 
 if TYPE_CHECKING:
     from compensation.loop import LoopResult
-    from imc.build import Models
-    from imc.truth import Truth
+    from imc.wiring.build import Models
+    from imc.wiring.truth import Truth
 
 APP_ID = "imcsim"
 AXES = ("row", "col")
@@ -128,7 +128,7 @@ def _log_tracker(rec, rr, m: Models, res: LoopResult, truth: Truth,
 
 
 def _log_motion(rec, rr, m: Models, res: LoopResult, series: dict) -> None:
-    from imc.figures import estimate_px
+    from imc.outputs.figures import estimate_px
 
     t, mo, st = series["t_s"], series["motion_px"], series["stage_px"]
     fine = rr.TimeColumn("time", duration=t)
@@ -224,7 +224,7 @@ def write_recording(path: Path, m: Models, res: LoopResult, truth: Truth,
     main_imager.png beside it when they are there."""
     import rerun as rr
 
-    from imc.figures import uniform_motion
+    from imc.outputs.figures import uniform_motion
 
     path = Path(path)
     s_path = path.parent / "series.npz"

@@ -27,7 +27,7 @@ from camera.motion import CameraModel
 from correlator.core import Correlator, CorrelatorOptions
 from orbit.attitude import Attitude, orbit_looking_at
 from orbit.frames import LocalFrame
-from scene.classes import cloud_layer, scene_class
+from scene.classes import cloud_cell_m, cloud_layer, scene_class
 from scene.pinhole import ray_keyframes
 
 #: the paper's Table 2: class -> (success %, std of error px)
@@ -89,7 +89,7 @@ def run_class(kind: str, cfg: Table2Config, seed: int,
     clouds = None
     if kind == "mountain":  # the paper's mountain scene has snow and clouds
         base = float(terrain.dem_m.max()) + 1000.0
-        clouds = cloud_layer(size + 4 * base, max(2.0, (size + 4 * base) / 4096), 0.2, base,
+        clouds = cloud_layer(size + 4 * base, cloud_cell_m(size + 4 * base, 2.0), 0.2, base,
                              rng)
     r = Renderer(terrain, Sun(*cfg.sun_deg), canvas, canvas, spp=cfg.spp, clouds=clouds)
     phases = np.vstack([[0.0, 0.0], rng.uniform(0.0, 1.0, size=(cfg.n_phases, 2))])

@@ -13,7 +13,7 @@ import numpy as np
 
 from camera.geometry import Pose, project
 from compensation.loop import LoopRecord, Trajectory
-from imc.build import Models
+from imc.wiring.build import Models
 
 
 @dataclass(frozen=True)

@@ -41,14 +41,9 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from correlator import fftbackend
+from correlator.bounds import correlation_bound_px, crlb_px
 from correlator.core import Correlator, measure_shift
-from correlator.testimages import (
-    MEAN_LEVEL,
-    correlation_bound_px,
-    crlb_px,
-    image_pairs,
-    texture_pairs,
-)
+from correlator.testimages import MEAN_LEVEL, image_pairs, texture_pairs
 
 Estimator = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 

@@ -16,13 +16,14 @@ from camera.imager import FrameImager, MainImager, TdiImager, synchronous_line_r
 from camera.motion import CameraModel
 from camera.optics import Optics
 from camera.sensor import Radiometry, SensorModel
+from compensation.registry import block_class, make_block
 from correlator.core import CorrelatorOptions
 from correlator.optical import OpticalJtc
 from correlator.timing import PipelineTiming, Schedule
 from correlator.tracker import BlockTracker, block_grid
-from imc import streams
-from imc.budget import LIGHT_TEXELS, flat_stand_in
-from imc.scenario import CloudsConfig, Scenario, ScenarioError, make_block
+from imc.scenario import CloudsConfig, Scenario, ScenarioError
+from imc.wiring import streams
+from imc.wiring.budget import LIGHT_TEXELS
 from orbit.aircraft import Aircraft, AircraftAttitude
 from orbit.attitude import Attitude, orbit_looking_at
 from orbit.frames import LocalFrame
@@ -31,12 +32,9 @@ from orbit.kepler import EarthOrbit, Orbit
 from orbit.sun import sun_elevation_azimuth_deg
 from orbit.suspension import Suspension
 from orbit.tle import TleOrbit
-from scene.classes import CloudLayer, cloud_layer, scene_class
+from scene.classes import CloudLayer, cloud_cell_m, cloud_layer, scene_class
 from scene.geotiff import GeoTiffError, terrain_from_geotiff
-from scene.terrain import Terrain
-
-KEYFRAMES_PER_EXPOSURE = 5
-CHECKPOINT_EVERY = 10
+from scene.terrain import Terrain, flat_terrain
 
 
 @dataclass(frozen=True)
@@ -176,10 +174,6 @@ def build_jitter(sc: Scenario, ifov_rad: float):
     return series
 
 
-#: clouds whose layer would need more cells than this per side get coarser cells
-MAX_CLOUD_CELLS = 4096
-
-
 def build_scene(sc: Scenario, light: bool = False
                 ) -> tuple[Terrain, CloudLayer | None, tuple[float, float], tuple[float, float]]:
     """Terrain, cloud layer, centre (lat, lon) deg and sun (elevation, azimuth) deg.
@@ -208,7 +202,7 @@ def build_scene(sc: Scenario, light: bool = False
                 "or set scene.sun_elevation_deg and sun_azimuth_deg")
         sun = (float(el), float(az))
     if s.kind != "geotiff" and light and round(s.size_m / s.texel_m) ** 2 > LIGHT_TEXELS:
-        terrain = flat_stand_in(s.size_m, s.dem_spacing_m)
+        terrain = flat_terrain(s.size_m, s.dem_spacing_m)
     elif s.kind != "geotiff":
         try:
             terrain = scene_class(s.kind, s.size_m, s.texel_m, s.dem_spacing_m,
@@ -224,7 +218,7 @@ def build_scene(sc: Scenario, light: bool = False
         base = float(np.max(terrain.dem_m)) + cfg.base_height_m
         # wide enough for a 56 deg off-nadir view and a 34 deg sun through the layer
         extent = max(terrain.size_m) + 3.0 * (base + cfg.thickness_m - float(terrain.dem_m.min()))
-        cell = max(cfg.cell_m, extent / MAX_CLOUD_CELLS)
+        cell = cloud_cell_m(extent, cfg.cell_m)
         clouds = cloud_layer(extent, cell, cfg.cover, base, streams.rng(sc.seed, "clouds"),
                              cfg.thickness_m, cfg.albedo)
     return terrain, clouds, centre, sun
@@ -303,7 +297,7 @@ def build_models(sc: Scenario, light: bool = False) -> Models:
         sensor=SensorModel(t.mean_signal_dn, t.noise_sigma_dn, t.adc_bits, t.noise_model,
                            t.gain_e_per_dn, t.full_well_e, t.read_noise_e,
                            t.dark_current_e_per_s),
-        correlator=_correlator_options(sc),
+        correlator=correlator_options(sc),
         corners=corners,
         frame_t_s=frame_t,
         exposure_s=sc.exposure_s,
@@ -318,7 +312,7 @@ def build_models(sc: Scenario, light: bool = False) -> Models:
     return models
 
 
-def _correlator_options(sc: Scenario) -> CorrelatorOptions:
+def correlator_options(sc: Scenario) -> CorrelatorOptions:
     """The correlator's options; an optical model that cannot hold the blocks is a
     ScenarioError naming the field."""
     c = sc.correlator
@@ -447,21 +441,20 @@ def build_loop(m: Models, channel=None, plant_sigma_px: float | None = None) -> 
     transport = Transport(latency_s=latency, deliver_s=deliver, processed=processed,
                           drop_probability=comp.transport.drop_probability,
                           seed=tuple(streams.key(sc.seed, "drops")), channel=channel)
+    # the values the wiring derives from the rest of the scenario; each block takes the ones
+    # its class names in WIRED
+    wired = {"field_point_px": m.field_point_px, "ramp_s": period, "rate_hz": 1.0 / period}
+    if comp.controller.option("feedforward"):
+        wired["nominal_px"] = nominal_target(m)
     try:
-        estimator = make_block("estimator", comp.estimator.kind, comp.estimator.params(),
-                               {"field_point_px": m.field_point_px})
-        wired = {"ramp_s": period} if comp.actuator.kind == "ideal" else {}
+        estimator = make_block("estimator", comp.estimator.kind, comp.estimator.params(), wired)
         actuator = make_block("actuator", comp.actuator.kind, comp.actuator.params(), wired)
-        if comp.actuator.kind == "piezo" and actuator.update_hz is None:
+        if getattr(actuator, "update_hz", 0.0) is None:  # a stage with its own DAC rate
             actuator = dataclasses.replace(actuator, update_hz=piezo_update_hz(
                 rate, actuator.resonance_hz, actuator.drive_top_hz))
         cparams = comp.controller.params()
-        wired = {"rate_hz": 1.0 / period}
-        if comp.controller.kind == "kalman":
-            if comp.controller.option("feedforward"):
-                wired["nominal_px"] = nominal_target(m)
-            if cparams.get("lead_s") is None:
-                cparams["lead_s"] = actuator.lag_s
+        if "lead_s" in _field_names(comp.controller.kind) and cparams.get("lead_s") is None:
+            cparams["lead_s"] = actuator.lag_s  # a predictor's lead: the stage's own lag
         controller = make_block("controller", comp.controller.kind, cparams, wired)
     except (TypeError, ValueError) as e:
         raise ScenarioError(f"compensation: {str(e).replace('@', '')}") from None
@@ -473,14 +466,18 @@ def build_loop(m: Models, channel=None, plant_sigma_px: float | None = None) -> 
         model = dataclasses.replace(model, controller=controller)
     margins = model.margins()
     if comp.enabled:
-        _check_margins(comp, margins)
+        _check_margins(comp, margins, getattr(controller, "TUNING", "kind"))
     return LoopParts(estimator, controller, actuator, transport, timeline, model, margins)
 
 
-def _check_margins(comp, mg) -> None:
-    """Refuse an unstable or marginal design, naming the field to change."""
-    knob = {"integrator": "gain", "pi": "kp / ki", "pii": "kp / ki / kii",
-            "kalman": "bandwidth_hz"}.get(comp.controller.kind, "kind")
+def _field_names(controller_kind: str) -> set[str]:
+    """The parameters of a controller kind."""
+    return {f.name for f in dataclasses.fields(block_class("controller", controller_kind))}
+
+
+def _check_margins(comp, mg, knob: str) -> None:
+    """Refuse an unstable or marginal design, naming the field to change (``knob``: the
+    controller's parameter that sets its gain, its class's TUNING)."""
     where = f"compensation.controller.{knob}"
     if not mg.stable:
         raise ScenarioError(f"{where}: the closed loop is unstable (analytic loop model: "

@@ -18,9 +18,9 @@ import numpy as np
 
 from compensation.loop import Trajectory
 from compensation.metrics import NYQUIST, motion_mtf
-from imc.build import Models
 from imc.io import atomic_write, write_npz
-from imc.truth import Truth
+from imc.wiring.build import Models
+from imc.wiring.truth import Truth
 
 #: PSF grid: bin size (px; coarser when the residual is large), half-width (px) at least,
 #: and the most bins a side (a diverging loop's residual of tens of px stays a small image)

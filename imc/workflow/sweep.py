@@ -41,17 +41,17 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from imc.distribute import Lost, Runner, Task
 from imc.io import atomic_write, write_json
 from imc.scenario import (
     Scenario,
     ScenarioError,
-    _check_metric_path,
-    _format_validation_error,
+    check_metric_path,
     error_line,
+    format_validation_error,
     load_scenario,
     parse_scenario,
 )
+from imc.workflow.distribute import Lost, Runner, Task
 from imc.yamlload import YamlInputError, load_yaml, read_text, short
 
 #: metrics plotted when a sweep names none
@@ -117,7 +117,7 @@ class SweepConfig(BaseModel):
     @classmethod
     def _paths(cls, v):
         for p in v:
-            _check_metric_path(p)
+            check_metric_path(p)
         return v
 
     @field_validator("axes")
@@ -222,8 +222,8 @@ def _base(cfg: SweepConfig, source: Path | None) -> Scenario:
 
 def expand(cfg: SweepConfig, source: Path | None = None, force: bool = False) -> Sweep:
     """Every point of a sweep, each validated by the scenario schema and by the run-size
-    check of imc.budget (SweepError if not; ``force`` skips the size limits)."""
-    from imc.budget import check_run_size, estimate_run
+    check of imc.wiring.budget (SweepError if not; ``force`` skips the size limits)."""
+    from imc.wiring.budget import check_run_size, estimate_run
 
     src = str(source) if source is not None else "sweep"
     try:
@@ -292,8 +292,8 @@ def load_sweep(path: str | Path, force: bool = False) -> Sweep:
     try:
         cfg = SweepConfig.model_validate(data)
     except ValidationError as e:
-        raise SweepError(_format_validation_error(e, str(p)).replace(
-            "docs/scenario.md", "the README's sweep section")) from None
+        raise SweepError(format_validation_error(e, str(p)).replace(
+            "docs/scenario.md", "docs/workflow.md")) from None
     return expand(cfg, p, force)
 
 
@@ -494,11 +494,3 @@ def write_results(sweep: Sweep, out_dir: Path) -> list[Path]:
     atomic_write(out_dir / "results.parquet", lambda p: df.to_parquet(p, index=False))
     atomic_write(out_dir / "results.csv", lambda p: df.to_csv(p, index=False))
     return [out_dir / f"results.{x}" for x in ("nc", "parquet", "csv")]
-
-
-def load_results(out_dir: Path):
-    """The results Dataset of a sweep folder."""
-    import xarray as xr
-
-    with xr.open_dataset(Path(out_dir) / "results.nc", engine="h5netcdf") as ds:
-        return ds.load()

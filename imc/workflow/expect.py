@@ -138,8 +138,8 @@ def check_one(path: str, out_dir: str, report: bool = False) -> dict:
     import dataclasses
     import time
 
-    from imc.htmlreport import EXPECTATIONS, write_run_report
     from imc.io import write_json
+    from imc.outputs.htmlreport import EXPECTATIONS, write_run_report
     from imc.pipeline import run_scenario
     from imc.scenario import error_line, load_scenario
 

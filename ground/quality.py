@@ -102,8 +102,11 @@ def edge_spread(img: np.ndarray, oversample: int = 4, margin: int = 8):
     start = max(0, centre - half)
     esf = esf[start:centre + half]
     dist = (np.arange(len(esf)) + start - centre) / oversample
-    low = float(np.mean(esf[dist <= -PLATEAU_PX]))
-    high = float(np.mean(esf[dist >= PLATEAU_PX]))
+    below, above = esf[dist <= -PLATEAU_PX], esf[dist >= PLATEAU_PX]
+    if below.size == 0 or above.size == 0:
+        raise ValueError(f"img: the edge must lie more than {PLATEAU_PX + margin:g} px inside "
+                         "the region on both sides")
+    low, high = float(np.mean(below)), float(np.mean(above))
     if high < low:  # bright side first: turn it round so the ESF rises
         dist, esf, low, high = -dist[::-1], esf[::-1], high, low
     contrast = high - low

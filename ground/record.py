@@ -10,10 +10,12 @@ polynomial) gives ``(F(t + T) - F(t)) / T`` for all lines at once. Outside the r
 the motion is held at its end value (no polynomial extrapolation).
 
 Interpolants (scipy.interpolate): ``"cubic"`` (``CubicSpline``, not-a-knot; 4th-order
-accurate for smooth motion, the default: it measured best on sinusoidal jitter sampled every
-10-20 lines, see tests/test_ground_record.py), ``"pchip"`` (``PchipInterpolator``: monotone,
-no overshoot at steps, 3rd order), ``"linear"``, ``"smoothing"`` (``make_smoothing_spline``
-weighted by 1/sigma^2, its penalty chosen by generalised cross-validation; for noisy records).
+accurate for smooth motion; the default: on sinusoidal jitter sampled 9-12 times a period it
+measured 1e-4 px RMS against 6e-3 for PCHIP and 1.3e-2 for linear, tests/test_ground.py),
+``"pchip"`` (``PchipInterpolator``: monotone, no overshoot at steps, 3rd order),
+``"linear"``, ``"smoothing"`` (``make_smoothing_spline`` weighted by 1/sigma^2, its penalty
+chosen by generalised cross-validation; for noisy records: with 0.05 px noise it measured
+0.028 px RMS against the spline's 0.034).
 
 :func:`perfect_record` gives the truth at the record's own sample times, so the caller can
 split the error of :func:`line_motion` into the record's own error (noise, bias, delay) and

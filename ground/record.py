@@ -131,7 +131,8 @@ def line_motion(record: MotionRecord, t_line_s, integration_s: float,
     """Exposure-averaged image motion of every line, (n_lines, 2) (row, col) px.
 
     Line ``l`` integrates over ``[t_line_s[l], t_line_s[l] + integration_s]`` (s);
-    ``integration_s = 0`` samples the interpolant at ``t_line_s``. ``method``: one of
+    ``integration_s = 0`` (or below 1e-9 of the record's span) samples the interpolant at
+    the window's middle. ``method``: one of
     ``METHODS`` (see the module docstring).
     """
     t_line = _check_lines(t_line_s, integration_s)
@@ -144,8 +145,8 @@ def line_motion(record: MotionRecord, t_line_s, integration_s: float,
     fits = _interpolant(t, m, sigma, method)
     cols = [slice(None)] if len(fits) == 1 else [0, 1]
     for f, k in zip(fits, cols, strict=True):
-        if integration_s == 0:
-            out[:, k] = f(np.clip(t_line, t[0], t[-1]))
+        if integration_s <= 1e-9 * (t[-1] - t[0]):  # (F(b) - F(a)) / T would cancel
+            out[:, k] = f(np.clip(t_line + integration_s / 2, t[0], t[-1]))
         else:
             a = _held_integral(f, t[0], t[-1], t_line)
             b = _held_integral(f, t[0], t[-1], t_line + integration_s)

@@ -4,9 +4,10 @@ The strip and its per-line offsets follow the convention shared with the strip r
 ``strip[l, c] ~= static[l + off[l, 0], c + off[l, 1]]``, ``off`` of shape (n_lines, 2) (row,
 col) px, or field-dependent (n_lines, n_cols, 2) (rotation/scale across the line). The
 rectified product is ``corrected[y, x] = strip[l*, c*]`` with ``l* + off_row(l*, c*) = y`` and
-``c* + off_col(l*, c*) = x``: the mapping is inverted by a fixed-point iteration
-``(l, c) <- (y, x) - off(l, c)``, a contraction while the offsets change by less than 1 px per
-line or column (the strip does not fold over), then the strip is sampled there by
+``c* + off_col(l*, c*) = x``: the mapping is inverted by Newton's method on the line
+coordinate (per-line offsets), or by the fixed-point iteration ``(l, c) <- (y, x) - off(l, c)``
+(field-dependent offsets, a contraction while they change by less than 1 px per line or
+column: the strip does not fold over), then the strip is sampled there by
 ``scipy.ndimage.map_coordinates`` (cubic B-spline by default). Offsets between lines are
 cubic-spline interpolated. Pixels whose source falls outside the strip are flagged invalid
 and filled with ``fill``.
@@ -23,9 +24,9 @@ import numpy as np
 from scipy import ndimage
 from scipy.interpolate import CubicSpline
 
-#: fixed-point iteration: stop when no source coordinate moves more than this (px)
+#: inversion of the mapping: stop when no source coordinate moves more than this (px)
 TOL_PX = 1e-7
-MAX_ITER = 50
+MAX_ITER = 200
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare fields, not objects
@@ -61,22 +62,27 @@ def _check(strip, line_offset_px) -> tuple[np.ndarray, np.ndarray]:
 def source_coordinates(line_offset_px: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """Where each nominal pixel (y, x) of a strip of ``shape`` comes from: (2, n, m) (l*, c*).
 
-    Solves ``(l, c) + off(l, c) = (y, x)`` by fixed-point iteration with the offsets cubic-
-    spline interpolated and held constant beyond the strip's ends.
+    Solves ``(l, c) + off(l, c) = (y, x)`` (Newton on l for per-line offsets, fixed-point
+    iteration for field-dependent ones) with the offsets cubic-spline interpolated and held
+    constant beyond the strip's ends.
     """
     n, m = shape
     off = np.asarray(line_offset_px, dtype=np.float64)
     lines = np.arange(n, dtype=np.float64)
-    if off.ndim == 2:  # one offset per line: solve for l* per nominal line only
+    if off.ndim == 2:  # one offset per line: solve l + off_row(l) = y per nominal line only
         spl = CubicSpline(lines, off, axis=0)
-        g = lines + off[:, 0]
-        lsol = np.interp(lines, g, lines)  # monotone first guess
-        for _ in range(MAX_ITER):
-            new = lines - spl(np.clip(lsol, 0, n - 1))[:, 0]
-            done = np.max(np.abs(new - lsol)) < TOL_PX
-            lsol = new
-            if done:
+        slope = spl.derivative()
+        lsol = np.interp(lines, lines + off[:, 0], lines)  # monotone first guess
+        for _ in range(MAX_ITER):  # Newton, the offsets held constant beyond the ends
+            at = np.clip(lsol, 0, n - 1)
+            inside = (lsol >= 0) & (lsol <= n - 1)
+            step = (lsol + spl(at)[:, 0] - lines) / (1.0 + np.where(inside, slope(at)[:, 0], 0.0))
+            lsol = lsol - step
+            if np.max(np.abs(step)) < TOL_PX:
                 break
+        else:
+            raise ValueError("line_offset_px: the line mapping l + off_row(l) did not invert "
+                             f"to {TOL_PX} px in {MAX_ITER} steps (it is nearly folding over)")
         col_off = spl(np.clip(lsol, 0, n - 1))[:, 1]
         rows = np.broadcast_to(lsol[:, None], (n, m))
         cols = np.arange(m, dtype=np.float64)[None, :] - col_off[:, None]
@@ -92,8 +98,9 @@ def source_coordinates(line_offset_px: np.ndarray, shape: tuple[int, int]) -> np
         done = np.max(np.abs(new - src)) < TOL_PX
         src = new
         if done:
-            break
-    return src
+            return src
+    raise ValueError("line_offset_px: the field mapping did not invert to "
+                     f"{TOL_PX} px in {MAX_ITER} steps (offsets change too fast across the field)")
 
 
 def rectify(strip, line_offset_px, *, order: int = 3, fill: float = np.nan,

@@ -44,7 +44,9 @@ def _check_image(img: np.ndarray, name: str, min_size: int = 1) -> np.ndarray:
 
 
 def _edge_bins(img: np.ndarray, oversample: int, margin: int):
-    """ISO 12233 binning: (ESF over the whole ROI, bin index of the edge, ROI)."""
+    """ISO 12233 binning: (ESF over the whole ROI, bin index of the edge)."""
+    if margin < 1 or oversample < 1:
+        raise ValueError(f"margin and oversample must be >= 1, got {margin} and {oversample}")
     im = np.asarray(img, dtype=np.float64)[margin:-margin, margin:-margin]
     d = np.diff(im, axis=0)
     rows = np.arange(d.shape[0]) + 0.5

@@ -180,6 +180,21 @@ def test_noisy_late_gappy_record_and_its_perfect_twin(strip_case):
     assert np.max(np.abs(exact - s["off"])) < 1e-5
 
 
+def test_line_motion_holds_the_record_beyond_its_ends():
+    t = np.arange(10.0)
+    m = np.stack([np.sin(t), 0.1 * t], axis=1)
+    rec = MotionRecord(t, m, np.ones(10, bool))
+    late = line_motion(rec, np.array([12.0, 20.0]), 1.0)
+    assert np.allclose(late, m[-1])  # wholly after the last sample: its value, held
+    early = line_motion(rec, np.array([-0.5]), 1.0)
+    # half the window before the first sample (held), half on the spline over [0, 0.5]
+    from scipy.interpolate import CubicSpline
+
+    spl = CubicSpline(t, m, axis=0)
+    assert np.allclose(early[0], 0.5 * m[0] + 0.5 * spl.integrate(0.0, 0.5) / 0.5)
+    assert np.allclose(line_motion(rec, np.array([3.25]), 0.0)[0], spl(3.25))
+
+
 def test_field_dependent_offsets(strip_case):
     s = strip_case
     n, m = s["static"].shape

@@ -205,6 +205,8 @@ def noise_transfer(psf, shape: tuple[int, int], nsr: float,
     if method not in ("wiener", "wiener_laplacian"):
         raise ValueError(f"method must be 'wiener' or 'wiener_laplacian', got {method!r}")
     p = _check_psf(psf)
+    if len(shape) != 2 or shape[0] < p.shape[0] or shape[1] < p.shape[1]:
+        raise ValueError(f"shape must be 2-D and at least the psf's {p.shape}, got {shape}")
     h = np.fft.fft2(np.pad(p, [(0, shape[0] - p.shape[0]), (0, shape[1] - p.shape[1])]))
     reg = np.ones(shape) if method == "wiener" else np.abs(uft.laplacian(2, shape,
                                                                          is_real=False)[0])

@@ -1,0 +1,20 @@
+"""Ground processing of the main imager's product, after compensation in the data flow.
+
+ground/ owns what happens to the main imager's strip (or frame) once it is on the ground:
+
+* ``ground.record``: the per-line image-motion model from the motion record the loop received
+  (interpolated in time, averaged over each line's integration window), and the same from a
+  perfect record (the truth) to separate the record's own error from interpolation;
+* ``ground.rectify``: geometric rectification, the strip resampled onto the nominal
+  (motion-free) line/column grid from per-line (or field-dependent) offsets, and the geometric
+  error of an estimated offset against the true one;
+* ``ground.restore``: the residual-motion PSF and its removal by deconvolution
+  (scikit-image), space-variant in runs of lines;
+* ``ground.quality``: image-quality figures of a product: ISO 12233 slanted-edge MTF, RER,
+  edge overshoot, noise gain, SNR, NIIRS by GIQE 5 (pyBSM), PSNR and SSIM against the static
+  product, and a cross-check of the motion MTF against pyBSM's drift and jitter OTFs.
+
+It renders nothing (no renderer, no scene/), and imports only numpy, scipy, scikit-image,
+pyBSM and the lower stages (camera/, compensation/). Units are SI inside; image quantities
+are in pixels of the main imager.
+"""

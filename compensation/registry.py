@@ -12,11 +12,12 @@ from typing import Any
 import compensation.actuators  # noqa: F401  (registers the actuator kinds)
 import compensation.controllers  # noqa: F401  (registers the controller kinds)
 import compensation.estimators  # noqa: F401  (registers the estimator kinds)
+import compensation.supervisor  # noqa: F401  (registers the supervisor kinds)
 from compensation.blocks import _REGISTRY
 
 
 def kinds(role: str) -> tuple[str, ...]:
-    """The registered kinds of a role ('estimator', 'controller', 'actuator')."""
+    """The registered kinds of a role ('estimator', 'controller', 'actuator', 'supervisor')."""
     return tuple(sorted(_REGISTRY[role]))
 
 

@@ -111,6 +111,10 @@ class ResidualSupervisor:
         """-> (state, the command to apply) for one delivered measurement."""
         u_raw = np.asarray(u_px, dtype=np.float64)
         st = state
+        if not inp.valid and st.mode == _DERATE:
+            # a feedback law returns the applied command when its input is invalid, not its
+            # own output: hold, and keep its last output for the next increment
+            return st, st.prev_out_px.copy()
         if inp.valid:
             st = self._observe(st, inp)
             if st.mode in (_NORMAL, _DERATE) and inp.t_s >= st.judge_from_s:

@@ -113,13 +113,13 @@ N = 500
 MOTION = sinusoids([(0.5, 1.0, 0.3, 0), (0.2, 3.0, 0.0, 1)])
 
 
-def _run(controller, supervisor=None, on_chunk=None, resume=None):
+def _run(controller, supervisor=None, on_chunk=None, resume=None, drop=0.0):
     ft = np.arange(N) / RATE
     plant = AnalyticPlant(MOTION, np.zeros((1, 2)), 0.02, ft, 1 / RATE, seed=(7,))
     tl = Timeline(ft, 1 / RATE, N / RATE, np.zeros((N, 2)), 1 / RATE)
     return simulate(plant, MeanEstimator(), controller, IdealStage(),
-                    Transport(latency_s=1 / RATE), tl, supervisor=supervisor,
-                    on_chunk=on_chunk, resume=resume)
+                    Transport(latency_s=1 / RATE, drop_probability=drop, seed=(2,)), tl,
+                    supervisor=supervisor, on_chunk=on_chunk, resume=resume)
 
 
 def _residual(res, t0=0.0):
@@ -171,6 +171,10 @@ def test_supervisor_derates_an_unstable_integrator_into_a_working_loop():
     healthy = _rms(_residual(_run(Integrator(rate_hz=RATE, gain=0.5)), 3.0))
     assert _rms(_residual(res, 3.0)) < 0.3 * OPEN_RMS
     assert _rms(_residual(res, 3.0)) < 2.0 * healthy
+    # with 20 % of the measurements lost (the law holds its command on those)
+    lossy = _run(Integrator(rate_hz=RATE, gain=1.6),
+                 ResidualSupervisor(window_s=0.2, action="derate"), drop=0.2)
+    assert lossy.supervisor and _rms(_residual(lossy, 3.0)) < 0.3 * OPEN_RMS
 
 
 def test_supervisor_on_a_healthy_loop_never_acts_and_changes_nothing():

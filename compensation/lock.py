@@ -39,6 +39,10 @@ class AnalyticLock:
     final : the residual's final value (0 with an integrator in the loop).
     slowest_pole : the largest closed-loop pole radius |z| (nan: none).
     time_constant_s : -T / ln(slowest_pole): the slowest pole's time constant.
+    pole_lock_s : time_constant_s * ln(1 / band): when the slowest closed-loop mode has decayed
+        to ``band`` of its start; the lock time of a disturbance onset that excites that mode
+        fully (a resonant term's convergence on a line that starts), where a step may barely
+        excite it.
     """
 
     lock_s: float
@@ -46,6 +50,7 @@ class AnalyticLock:
     final: float
     slowest_pole: float
     time_constant_s: float
+    pole_lock_s: float
 
     def to_dict(self) -> dict:
         return {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
@@ -93,7 +98,8 @@ def analytic_lock_time(model, band: float = 0.02, max_s: float = 600.0) -> Analy
     tau = (-period / np.log(radius) if poles.size and 0.0 < radius < 1.0
            else (0.0 if poles.size and radius == 0.0 else float("inf")))
     if model.unstable_roots() > 0 or (poles.size and radius >= 1.0):
-        return AnalyticLock(float("inf"), band, float("nan"), radius, float("inf"))
+        return AnalyticLock(float("inf"), band, float("nan"), radius, float("inf"),
+                            float("inf"))
     # long enough for the slowest pole to fall far below the band, and for the longest
     # polynomial to act; capped at max_s
     decay = (0 if not np.isfinite(tau) or tau == 0.0
@@ -109,7 +115,7 @@ def analytic_lock_time(model, band: float = 0.02, max_s: float = 600.0) -> Analy
         lock = float("inf")
     else:
         lock = float((outside[-1] + 1) * period)
-    return AnalyticLock(lock, band, final, radius, float(tau))
+    return AnalyticLock(lock, band, final, radius, float(tau), float(tau * np.log(1.0 / band)))
 
 
 @dataclass(frozen=True)

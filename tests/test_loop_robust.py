@@ -35,6 +35,7 @@ def test_analytic_lock_time_of_a_first_order_loop_is_its_closed_form(gain, band)
     assert lock.lock_s == pytest.approx(np.ceil(np.log(band) / np.log(pole)) / rate, abs=1e-12)
     assert lock.slowest_pole == pytest.approx(pole, abs=1e-12)
     assert lock.time_constant_s == pytest.approx(-1 / rate / np.log(pole), rel=1e-9)
+    assert lock.pole_lock_s == pytest.approx(np.log(band) / np.log(pole) / rate, rel=1e-9)
     assert lock.final == pytest.approx(0.0, abs=1e-12)  # an integrator leaves no offset
 
 

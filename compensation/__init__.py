@@ -11,14 +11,25 @@ from compensation.blocks import (
     Estimator,
     MotionEstimate,
     Plant,
+    Supervisor,
     Transport,
     register,
+)
+from compensation.lock import (
+    AnalyticLock,
+    RunLock,
+    analytic_lock_time,
+    run_lock_time,
+    running_rms,
 )
 from compensation.loop import Chunk, LoopRecord, LoopResult, Timeline, Trajectory, simulate
 from compensation.metrics import ResidualMetrics, motion_mtf, residual_metrics
 from compensation.registry import block_class, build, kinds
+from compensation.supervisor import ResidualSupervisor
 
 __all__ = [
+    "AnalyticLock", "ResidualSupervisor", "RunLock", "Supervisor", "analytic_lock_time",
+    "run_lock_time", "running_rms",
     "Actuator", "BlockMeasurements", "Chunk", "ControlInput", "Controller", "Estimator",
     "LoopModel", "LoopRecord", "LoopResult", "Margins", "MotionEstimate", "Plant",
     "ResidualMetrics", "Timeline", "Trajectory", "Transport", "block_class", "build",

@@ -141,6 +141,22 @@ class Controller(Protocol):
 
 
 @runtime_checkable
+class Supervisor(Protocol):
+    """Optional: watches each delivered measurement and the command the controller proposes,
+    and may replace the command (hold the stage, de-rate the law). Its decisions live in its
+    state (:meth:`decisions` lists them)."""
+
+    kind: str
+
+    def init(self) -> Any: ...
+
+    def update(self, state: Any, inp: ControlInput, u_px: np.ndarray
+               ) -> tuple[Any, np.ndarray]: ...
+
+    def decisions(self, state: Any) -> list[dict]: ...
+
+
+@runtime_checkable
 class Actuator(Protocol):
     """The focal-plane stage: commands in, a continuous trajectory out.
 
@@ -227,7 +243,8 @@ class Plant(Protocol):
 
 #: kind -> class, per role; filled by :func:`register` as the block modules are imported
 #: (compensation.registry imports the built-in ones)
-REGISTRY: dict[str, dict[str, type]] = {"estimator": {}, "controller": {}, "actuator": {}}
+REGISTRY: dict[str, dict[str, type]] = {"estimator": {}, "controller": {}, "actuator": {},
+                                        "supervisor": {}}
 
 
 def register(role: str, kind: str):

@@ -382,6 +382,30 @@ class KalmanPredictor:
         (N, 2) px), used as feed-forward: the filter models only what it does not predict.
     notch : optional notch on the command (as the feedback kinds).
     rate_hz : the nominal measurement rate.
+
+    Lines nobody configured (all off by default: the predictor as it was, bit for bit):
+
+    handover : how a newly identified line's part is taken from the kinematic states:
+        'full' (all of it: right for lines well below ``bandwidth_hz``) or 'response' (the
+        part the filter's kinematic states actually followed, from its frequency response
+        at the line with the current gain: right at any frequency; the kinematic states
+        barely follow a wheel line far above their bandwidth, and taking all of it from them
+        upsets the prediction by up to (2 pi f)^2 times the line's amplitude).
+    track_gain : each line's frequency follows the rotation its update implies (a phase-
+        locked loop on the oscillator: Im(b_post conj(b_prior)) / |b_prior|^2 / dt, summed
+        over axes), this fraction of it per measurement; 0: fixed frequencies. What follows a
+        swept wheel line. Only lines above the kinematic bandwidth are tracked (below it the
+        kinematic states share their motion and the rotation is not the line's own).
+    track_min_snr : a line's frequency is tracked only while its amplitude stands this many
+        times above its own uncertainty (the state's posterior standard deviation) and the
+        measurement noise (sigma_nom).
+    prune_snr : at every identification, lines (known or identified) whose least-squares
+        power over the window, N |a|^2 / (4 sigma^2) (|a| summed over axes, sigma the fit's
+        residual RMS per axis), is below this are removed: a configured line that matches
+        no disturbance stops costing noise. None: never.
+    line_prior_px : the initial 1-sigma of a configured line's state (its amplitude before
+        any measurement), px; None: 1 px. The line_amplitude_px a line is expected to have is
+        the natural choice: a configured line then costs little before the first pruning.
     """
 
     WIRED: ClassVar[tuple[str, ...]] = ("rate_hz", "nominal_px")
@@ -403,9 +427,24 @@ class KalmanPredictor:
     sigma_floor_px: float = 1e-3
     nominal_px: Callable[[np.ndarray], np.ndarray] | None = None
     notch: Notch | None = None
+    handover: str = "full"
+    track_gain: float = 0.0
+    track_min_snr: float = 3.0
+    prune_snr: float | None = None
+    line_prior_px: float | None = None
     smith: bool = field(default=False, init=False)  # pseudo-open-loop by construction
 
     def __post_init__(self) -> None:
+        if self.handover not in ("full", "response"):
+            raise ValueError(f"handover must be 'full' or 'response', got {self.handover!r}")
+        if not 0.0 <= self.track_gain < 1.0:
+            raise ValueError(f"track_gain must be within [0, 1), got {self.track_gain}")
+        if not self.track_min_snr >= 0:
+            raise ValueError(f"track_min_snr must be >= 0, got {self.track_min_snr}")
+        if self.prune_snr is not None and not self.prune_snr > 0:
+            raise ValueError(f"prune_snr must be > 0 (or None), got {self.prune_snr}")
+        if self.line_prior_px is not None and not self.line_prior_px > 0:
+            raise ValueError(f"line_prior_px must be > 0 (or None), got {self.line_prior_px}")
         if self.order not in (1, 2, 3):
             raise ValueError(f"order must be 1, 2 or 3, got {self.order}")
         if self.bandwidth_hz is not None and not self.bandwidth_hz > 0:
@@ -440,7 +479,8 @@ class KalmanPredictor:
         return phi, q, h
 
     def _initial_cov(self, n_lines: int) -> np.ndarray:
-        d = [1e2, 1e4, 1e6][: self.order] + [1.0] * (2 * n_lines)
+        line = 1.0 if self.line_prior_px is None else self.line_prior_px**2
+        d = [1e2, 1e4, 1e6][: self.order] + [line] * (2 * n_lines)
         return np.diag(d)
 
     # -- the block ------------------------------------------------------------------------
@@ -506,10 +546,32 @@ class KalmanPredictor:
         s = ph @ h + sigma**2  # (2,)
         k = ph / s[:, None]
         innovation = z - x @ h
+        prior = x
         x = x + k * innovation[:, None]
         cov = cov - k[:, :, None] * ph[:, None, :]
         cov = 0.5 * (cov + np.transpose(cov, (0, 2, 1)))
+        if self.track_gain > 0 and len(st.lines_hz) and t > st.t_s:
+            return dataclasses.replace(st, x=x, cov=cov, t_s=t,
+                                       lines_hz=self._track(st, prior, x, cov, t - st.t_s))
         return dataclasses.replace(st, x=x, cov=cov, t_s=t)
+
+    def _track(self, st: KalmanState, prior: np.ndarray, post: np.ndarray, cov: np.ndarray,
+               dt: float) -> np.ndarray:
+        """Each line's frequency moved by track_gain times the rotation its update implied
+        (the oscillator's phasor b = c + j s, summed over axes; at most 0.5 rad a step), for
+        lines above the kinematic bandwidth whose amplitude stands track_min_snr above its
+        own uncertainty (the posterior standard deviation of c and s) and the noise."""
+        j = self.order + 2 * np.arange(len(st.lines_hz))
+        b0 = prior[:, j] + 1j * prior[:, j + 1]  # (2, L)
+        b1 = post[:, j] + 1j * post[:, j + 1]
+        power = np.sum(np.abs(b0) ** 2, axis=0)
+        var = np.sum(cov[:, j, j] + cov[:, j + 1, j + 1], axis=0)  # (L,)
+        noise = st.sigma_nom if np.isfinite(st.sigma_nom) else self.sigma_floor_px
+        ok = ((power > self.track_min_snr**2 * np.maximum(var, noise**2))
+              & (st.lines_hz > self._bw()))
+        rot = np.sum((b1 * np.conj(b0)).imag, axis=0) / np.where(ok, power, 1.0)
+        rot = np.clip(rot, -0.5, 0.5)
+        return st.lines_hz + np.where(ok, self.track_gain * rot / (2 * np.pi * dt), 0.0)
 
     def _identify(self, st: KalmanState, t: float, z: np.ndarray, sigma: float):
         keep = st.hist_t > t - self.window_s
@@ -518,7 +580,11 @@ class KalmanPredictor:
         st = dataclasses.replace(st, hist_t=hist_t, hist_z=hist_z)
         span = hist_t[-1] - hist_t[0]
         due = np.isnan(st.t_identified) or t - st.t_identified >= self.every_s
-        if not due or span < 0.9 * self.window_s or len(st.lines_hz) >= self.max_lines:
+        if not due or span < 0.9 * self.window_s:
+            return st
+        if self.prune_snr is not None and len(st.lines_hz):
+            st = self._prune(dataclasses.replace(st, t_identified=t))
+        if len(st.lines_hz) >= self.max_lines:
             return st
         st = dataclasses.replace(st, t_identified=t)
         found = find_lines(hist_t, hist_z, 1.5 / self.window_s, self.line_snr,
@@ -526,6 +592,27 @@ class KalmanPredictor:
         if not len(found):
             return st
         return self._add_lines(st, found, sigma)
+
+    def _prune(self, st: KalmanState) -> KalmanState:
+        """Remove the lines whose least-squares power over the window is below prune_snr
+        (see the class docstring); their states and covariance go with them."""
+        t, z = st.hist_t, st.hist_z
+        tc = t - t[-1]
+        cols = [np.ones_like(tc), tc, tc**2]
+        for f in st.lines_hz:
+            cols += [np.cos(2 * np.pi * f * tc), -np.sin(2 * np.pi * f * tc)]
+        design = np.column_stack(cols)
+        coef, *_ = np.linalg.lstsq(design, z, rcond=None)
+        resid = z - design @ coef
+        var = max(float(np.mean(resid**2)), 1e-30)  # per axis
+        amp2 = (coef[3::2] ** 2 + coef[4::2] ** 2).sum(axis=1)  # (L,) over both axes
+        keep = len(t) * amp2 / (4.0 * var) >= self.prune_snr
+        if keep.all():
+            return st
+        idx = np.concatenate([np.arange(self.order)]
+                             + [self.order + 2 * i + np.arange(2) for i in np.flatnonzero(keep)])
+        return dataclasses.replace(st, x=st.x[:, idx], cov=st.cov[:, idx][:, :, idx],
+                                   lines_hz=st.lines_hz[keep], line_q=st.line_q[keep])
 
     def _add_lines(self, st: KalmanState, freqs: np.ndarray, sigma: float) -> KalmanState:
         """New oscillators initialised from a least-squares fit of the window (trend, known
@@ -545,14 +632,19 @@ class KalmanPredictor:
         x = np.zeros((2, n_new))
         x[:, :n_old] = st.x
         amp = np.zeros(len(freqs))
+        followed = (self._kinematic_response(st, freqs, float(np.median(np.diff(t))))
+                    if self.handover == "response" else None)
         for i, f in enumerate(freqs):
             c, s = coef[2 + 2 * i], coef[3 + 2 * i]  # (2,), value now = c
             x[:, n_old + 2 * i] = c
             x[:, n_old + 2 * i + 1] = s
-            w = 2 * np.pi * f
-            part = [c, -w * s, -w * w * c][: self.order]  # value, rate, acceleration now
-            for j, v in enumerate(part):
-                x[:, j] -= v
+            if followed is None:
+                w = 2 * np.pi * f
+                part = [c, -w * s, -w * w * c][: self.order]  # value, rate, acceleration now
+                for j, v in enumerate(part):
+                    x[:, j] -= v
+            else:  # the part of the line the kinematic states followed
+                x[:, : self.order] -= (followed[:, i, :] * (c + 1j * s)[:, None]).real
             amp[i] = float(np.sqrt(np.mean(c**2 + s**2)))
         cov = np.zeros((2, n_new, n_new))
         cov[:, :n_old, :n_old] = st.cov
@@ -564,6 +656,24 @@ class KalmanPredictor:
         # the window's innovations predate the new lines: start a fresh one
         return dataclasses.replace(st, x=x, cov=cov, lines_hz=lines, line_q=line_q,
                                    hist_t=np.empty(0), hist_z=np.empty((0, 2)))
+
+    def _kinematic_response(self, st: KalmanState, freqs: np.ndarray, dt: float
+                            ) -> np.ndarray:
+        """(2 axes, F, order) complex: the kinematic states' response to a unit phasor
+        exp(j w t) in the measurements, at each frequency, from the filter as it is (the
+        current covariance's gain, sampling dt): x = (I - (I - K H) Phi e^{-j w dt})^-1 K."""
+        phi, q, h = self.model(dt, st.lines_hz, st.line_q, st.sigma_nom)
+        n = len(h)
+        sig2 = max(st.sigma_nom, self.sigma_floor_px) ** 2
+        out = np.zeros((2, len(freqs), self.order), complex)
+        for a in range(2):
+            pred = phi @ st.cov[a] @ phi.T + q
+            k = pred @ h / (h @ pred @ h + sig2)
+            a_t = (np.eye(n) - np.outer(k, h)) @ phi
+            for i, f in enumerate(freqs):
+                m = np.eye(n) - a_t * np.exp(-2j * np.pi * f * dt)
+                out[a, i] = np.linalg.solve(m, k.astype(complex))[: self.order]
+        return out
 
     # -- transfer function (steady state, regular sampling) -------------------------------
     def steady_state(self, period_s: float, sigma_px: float, lines_hz=None, line_q=None):

@@ -173,17 +173,22 @@ class LoopResult:
     saturated_s: float = 0.0
     states: dict[str, Any] = field(default_factory=dict)
     transport_stats: dict[str, int] = field(default_factory=dict)
+    supervisor: list[dict] = field(default_factory=list)  # its decisions (none: no block)
 
 
 def simulate(plant, estimator, controller, actuator, transport, timeline: Timeline,
              enabled: bool = True, resume: list[Chunk] | None = None,
              on_chunk: Callable[[Chunk], None] | None = None, chunk_frames: int = 10,
-             progress: Callable[[int, int], None] | None = None) -> LoopResult:
+             progress: Callable[[int, int], None] | None = None,
+             supervisor=None) -> LoopResult:
     """Run (or continue) the loop over every frame of ``timeline``.
 
     ``resume``: the chunks of an interrupted run (in order); the run continues after the
     last one. ``on_chunk`` receives a :class:`Chunk` every ``chunk_frames`` frames and at the
     end. ``enabled`` False: open loop (measured and estimated, the stage never moves).
+    ``supervisor``: an optional block (:class:`compensation.blocks.Supervisor`) that sees each
+    measurement and the controller's command and may replace it; its decisions come back in
+    ``LoopResult.supervisor``. None: no supervisor (the loop as it was, bit for bit).
     """
     n, nb = timeline.n_frames, plant.n_blocks
     rec = LoopRecord.empty(n, nb)
@@ -195,6 +200,7 @@ def simulate(plant, estimator, controller, actuator, transport, timeline: Timeli
     act_state = actuator.init(0.0)
     mod_state = model.init(0.0)
     tr_state = transport.init()
+    sup_state = supervisor.init() if supervisor is not None else None
     pending: list[tuple[float, BlockMeasurements]] = []
     last_cmd = np.zeros(2)
     start = 0
@@ -202,6 +208,8 @@ def simulate(plant, estimator, controller, actuator, transport, timeline: Timeli
         start, est_state, ctl_state, act_state, mod_state, tr_state, pending, last_cmd = \
             _restore(resume, rec, traj, cmd, plant, estimator, controller, actuator, model,
                      transport)
+        if supervisor is not None:
+            sup_state = from_arrays("state/supervisor", type(sup_state), resume[-1].arrays)
     chunk_start = start
     marks = {"traj": len(traj.samples[0]), "cmd": len(cmd.samples[0])}
 
@@ -213,7 +221,7 @@ def simulate(plant, estimator, controller, actuator, transport, timeline: Timeli
         cmd.append(t, s)
 
     def deliver(t_a: float, meas: BlockMeasurements) -> None:
-        nonlocal est_state, ctl_state, act_state, mod_state, last_cmd
+        nonlocal est_state, ctl_state, act_state, mod_state, last_cmd, sup_state
         k = meas.frame
         ref = meas.ref_frame
         ref_stage = rec.stage_cmd_px[np.clip(ref, 0, n - 1)]
@@ -227,6 +235,9 @@ def simulate(plant, estimator, controller, actuator, transport, timeline: Timeli
                            timeline.period_s)
         ctl_state, u_raw = controller.update(ctl_state, inp)
         u_raw = np.asarray(u_raw, dtype=np.float64)
+        if supervisor is not None:
+            sup_state, u_raw = supervisor.update(sup_state, inp, u_raw)
+            u_raw = np.asarray(u_raw, dtype=np.float64)
         u = actuator.clip(u_raw)  # what the stage can do: what the loop assumes it did
         if not np.array_equal(u, last_cmd) or not np.array_equal(u, u_raw):
             act_state = actuator.command(act_state, t_a, u_raw)  # it clips and counts
@@ -270,13 +281,17 @@ def simulate(plant, estimator, controller, actuator, transport, timeline: Timeli
                 finish()  # the last chunk holds the run's end
             on_chunk(_make_chunk(chunk_start, k + 1, rec, traj, cmd, marks, plant, pending,
                                  est_state, ctl_state, act_state, mod_state, tr_state,
-                                 last_cmd))
+                                 last_cmd, sup_state))
             chunk_start = k + 1
     if on_chunk is None or start >= n:
         finish()
-    return LoopResult(rec, traj, cmd, n, actuator.saturated_s(act_state),
-                      {"estimator": est_state, "controller": ctl_state, "actuator": act_state},
-                      dataclasses.asdict(tr_state))
+    states = {"estimator": est_state, "controller": ctl_state, "actuator": act_state}
+    decisions: list[dict] = []
+    if supervisor is not None:
+        states["supervisor"] = sup_state
+        decisions = supervisor.decisions(sup_state)
+    return LoopResult(rec, traj, cmd, n, actuator.saturated_s(act_state), states,
+                      dataclasses.asdict(tr_state), decisions)
 
 
 def _record_measurement(rec: LoopRecord, meas: BlockMeasurements, blocks: np.ndarray) -> None:
@@ -303,7 +318,7 @@ def _record_estimate(rec: LoopRecord, est: MotionEstimate, t_a: float,
 
 
 def _make_chunk(a, b, rec, traj, cmd, marks, plant, pending, est_state, ctl_state, act_state,
-                mod_state, tr_state, last_cmd) -> Chunk:
+                mod_state, tr_state, last_cmd, sup_state=None) -> Chunk:
     arrays: dict[str, np.ndarray] = {}
     for name, arr in rec.fields().items():
         arrays[f"rec/{name}"] = arr[a:b].copy()
@@ -321,6 +336,8 @@ def _make_chunk(a, b, rec, traj, cmd, marks, plant, pending, est_state, ctl_stat
     arrays.update(to_arrays("state/actuator", act_state))
     arrays.update(to_arrays("state/model", mod_state))
     arrays.update(to_arrays("state/transport", tr_state))
+    if sup_state is not None:
+        arrays.update(to_arrays("state/supervisor", sup_state))
     arrays["state/last_cmd"] = np.asarray(last_cmd).copy()
     arrays["pending/t"] = np.array([p[0] for p in pending])
     for i, (_, m) in enumerate(pending):

@@ -23,6 +23,7 @@ from pydantic import TypeAdapter, ValidationError
 import compensation.actuators  # noqa: F401  (registers the actuator kinds)
 import compensation.controllers  # noqa: F401  (registers the controller kinds)
 import compensation.estimators  # noqa: F401  (registers the estimator kinds)
+import compensation.supervisor  # noqa: F401  (registers the supervisor kinds)
 from compensation.blocks import REGISTRY
 
 #: largest magnitude of any number in a scenario (products of a few stay far from overflow)
@@ -30,7 +31,7 @@ MAX_MAGNITUDE = 1e12
 
 
 def kinds(role: str) -> tuple[str, ...]:
-    """The registered kinds of a role ('estimator', 'controller', 'actuator')."""
+    """The registered kinds of a role ('estimator', 'controller', 'actuator', 'supervisor')."""
     return tuple(sorted(REGISTRY[role]))
 
 

@@ -337,10 +337,15 @@ class RayCaster:
     shadows : cast a shadow ray per hit (False: no cast shadows, ~1.5x faster).
     sky_view_dirs : rays per terrain face for its sky-view factor (0: F = 1, the sky fully
         visible everywhere; +10 % of the sky term on a 27 deg RMS slope terrain).
+    path : 'terrain' (no clouds): the hit point's planar uv into the albedo as a
+        ``mi.Texture2f`` (bilinear, clamp: the bitmap's own texel convention) and per-face
+        sun and sky terms gathered by the primitive index, ~3x faster; 'general': the full
+        surface interaction and the hit shape's BSDF reflectance (terrain or clouds);
+        'auto': 'terrain' unless the renderer has clouds.
     """
 
     def __init__(self, renderer: Renderer, batch_rays: int = 1 << 20, shadows: bool = True,
-                 sky_view_dirs: int = 32):
+                 sky_view_dirs: int = 32, path: str = "auto"):
         if batch_rays < 1024:
             raise ValueError(f"batch_rays must be >= 1024, got {batch_rays}")
         if sky_view_dirs < 0:
@@ -357,30 +362,55 @@ class RayCaster:
         self._sun_e = float(sun.irradiance)
         self._sky = float(sun.sky_radiance)
         self._terrain_shape = next(sh for sh in self._scene.shapes() if sh.id() == "terrain")
-        self.sky_view_s = 0.0
-        self._sky_view = None
+        clouds = renderer.clouds
+        has_clouds = clouds is not None and clouds.cover > 0.0
+        if path not in ("auto", "terrain", "general"):
+            raise ValueError(f"path must be 'auto', 'terrain' or 'general', got {path!r}")
+        if path == "terrain" and has_clouds:
+            raise ValueError("path 'terrain' cannot see clouds: use 'auto' or 'general'")
+        self.path = "general" if (path == "general" or has_clouds) else "terrain"
+        t0 = time.perf_counter()
+        origins, normals = self._terrain_faces()
+        self.sky_view_mean = 1.0
+        sky_view = np.ones(len(normals))
         if sky_view_dirs and self._sky > 0.0:
-            t0 = time.perf_counter()
-            self._sky_view = self._bake_sky_view(sky_view_dirs)
-            self.sky_view_s = time.perf_counter() - t0
+            sky_view = self._bake_sky_view(origins, normals, sky_view_dirs)
+            self.sky_view_mean = float(sky_view.mean())
+        self.sky_view_s = time.perf_counter() - t0
+        mi, dr = self._mi, self._dr
+        self._sky_view = mi.Float(sky_view.astype(np.float32))
+        if self.path == "terrain":
+            # per face: the sun term E max(0, n . s) / pi and the sky term L_sky F
+            cos = np.clip(normals @ np.asarray(self._to_sun), 0.0, None)
+            self._face_sun = mi.Float((self._sun_e * cos / np.pi).astype(np.float32))
+            self._face_sky = mi.Float((self._sky * sky_view).astype(np.float32))
+            terrain = renderer.terrain
+            self._size = terrain.size_m
+            self._tex = mi.Texture2f(
+                mi.TensorXf(np.ascontiguousarray(terrain.albedo, dtype=np.float32)[..., None]),
+                use_accel=False, filter_mode=dr.FilterMode.Linear,
+                wrap_mode=dr.WrapMode.Clamp)
 
     @property
     def variant(self) -> str:
         return self._renderer.variant
 
-    def _bake_sky_view(self, n_dirs: int):
-        """Per terrain face: the cosine-weighted fraction of n_dirs hemisphere directions
-        (a Fibonacci set, turned per face by a golden-ratio angle) that escape the scene."""
-        mi, dr = self._mi, self._dr
-        params = mi.traverse(self._terrain_shape)
+    def _terrain_faces(self) -> tuple[np.ndarray, np.ndarray]:
+        """Terrain face centroids lifted 1 cm along their normals, and unit normals (up)."""
+        params = self._mi.traverse(self._terrain_shape)
         v = np.asarray(params["vertex_positions"], dtype=np.float64).reshape(-1, 3)
         f = np.asarray(params["faces"]).reshape(-1, 3).astype(np.int64)
         p0, p1, p2 = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
         n = np.cross(p1 - p0, p2 - p0)
         n /= np.linalg.norm(n, axis=1, keepdims=True)
         n[n[:, 2] < 0] *= -1.0
-        org = (p0 + p1 + p2) / 3.0 + 0.01 * n  # 1 cm off the face (float32 at < 10 km)
-        n_faces = len(f)
+        return (p0 + p1 + p2) / 3.0 + 0.01 * n, n
+
+    def _bake_sky_view(self, org: np.ndarray, n: np.ndarray, n_dirs: int) -> np.ndarray:
+        """Per terrain face: the cosine-weighted fraction of n_dirs hemisphere directions
+        (a Fibonacci set, turned per face by a golden-ratio angle) that escape the scene."""
+        mi, dr = self._mi, self._dr
+        n_faces = len(n)
         j = np.arange(n_dirs)
         r = np.sqrt((j + 0.5) / n_dirs)  # cosine-weighted: uniform on the disc, lifted
         phi = j * 2.399963229728653
@@ -411,8 +441,7 @@ class RayCaster:
             ids = base + np.arange(cnt)
             free += np.bincount(ids // n_dirs, weights=np.asarray(ok)[:cnt],
                                 minlength=n_faces)
-        self.sky_view_mean = float(free.mean() / n_dirs)
-        return mi.Float((free / n_dirs).astype(np.float32))
+        return free / n_dirs
 
     def _kernel(self, kf, qx, qy, base: int, total: int, n_rows: int, n_cols: int):
         mi, dr = self._mi, self._dr
@@ -450,21 +479,32 @@ class RayCaster:
         pi = dr.select(second, pi2, pi)
         hit = first | second
         ray = mi.Ray3f(dr.select(second, o2, o), d)
-        si = pi.compute_surface_interaction(ray, mi.RayFlags.Minimal | mi.RayFlags.UV, hit)
-        refl = si.bsdf().eval_diffuse_reflectance(si, hit)
-        albedo = (refl[0] + refl[1] + refl[2]) * (1.0 / 3.0)
         s = mi.Vector3f(*self._to_sun)
-        cos = dr.maximum(dr.dot(si.n, s), 0.0)
-        lit = mi.Float(1.0)
-        if self.shadows:
-            blocked = scene.ray_test(si.spawn_ray(s), hit & (cos > 0.0))
-            lit = dr.select(blocked, 0.0, 1.0)
-        sky = mi.Float(self._sky)
-        if self._sky_view is not None:
+        if self.path == "terrain":
+            p = ray.o + pi.t * ray.d
+            w, h = self._size
+            uv = mi.Point2f((p.x + 0.5 * w) * (1.0 / w), (0.5 * h - p.y) * (1.0 / h))
+            albedo = self._tex.eval(uv, hit)[0]
+            sun = dr.gather(mi.Float, self._face_sun, pi.prim_index, hit)
+            sky = dr.gather(mi.Float, self._face_sky, pi.prim_index, hit)
+            if self.shadows:  # start 2 cm toward the sun (off the lit face)
+                blocked = scene.ray_test(mi.Ray3f(p + 0.02 * s, s), hit & (sun > 0.0))
+                sun = dr.select(blocked, 0.0, sun)
+            rad = albedo * (sun + sky)
+        else:
+            si = pi.compute_surface_interaction(ray, mi.RayFlags.Minimal | mi.RayFlags.UV,
+                                                hit)
+            refl = si.bsdf().eval_diffuse_reflectance(si, hit)
+            albedo = (refl[0] + refl[1] + refl[2]) * (1.0 / 3.0)
+            cos = dr.maximum(dr.dot(si.n, s), 0.0)
+            lit = mi.Float(1.0)
+            if self.shadows:
+                blocked = scene.ray_test(si.spawn_ray(s), hit & (cos > 0.0))
+                lit = dr.select(blocked, 0.0, 1.0)
             on_terrain = hit & (pi.shape == mi.ShapePtr(self._terrain_shape))
-            sky = dr.select(on_terrain, sky * dr.gather(mi.Float, self._sky_view,
-                                                        pi.prim_index, on_terrain), sky)
-        rad = albedo * (self._sun_e * cos * lit * (1.0 / np.pi) + sky)
+            sky = dr.select(on_terrain, self._sky * dr.gather(
+                mi.Float, self._sky_view, pi.prim_index, on_terrain), self._sky)
+            rad = albedo * (self._sun_e * cos * lit * (1.0 / np.pi) + sky)
         rad = dr.select(hit, rad, dr.nan)
         return rad, first, hit
 

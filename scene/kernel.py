@@ -337,6 +337,8 @@ class RayCaster:
     shadows : cast a shadow ray per hit (False: no cast shadows, ~1.5x faster).
     sky_view_dirs : rays per terrain face for its sky-view factor (0: F = 1, the sky fully
         visible everywhere; +10 % of the sky term on a 27 deg RMS slope terrain).
+    sky_view : a per-face sky-view factor already baked (``RayCaster.sky_view`` of another
+        caster of this renderer), instead of baking it again.
     path : 'terrain' (no clouds): the hit point's planar uv into the albedo as a
         ``mi.Texture2f`` (bilinear, clamp: the bitmap's own texel convention) and per-face
         sun and sky terms gathered by the primitive index, ~3x faster; 'general': the full
@@ -345,7 +347,8 @@ class RayCaster:
     """
 
     def __init__(self, renderer: Renderer, batch_rays: int = 1 << 20, shadows: bool = True,
-                 sky_view_dirs: int = 32, path: str = "auto"):
+                 sky_view_dirs: int = 32, path: str = "auto",
+                 sky_view: np.ndarray | None = None):
         if batch_rays < 1024:
             raise ValueError(f"batch_rays must be >= 1024, got {batch_rays}")
         if sky_view_dirs < 0:
@@ -371,11 +374,18 @@ class RayCaster:
         self.path = "general" if (path == "general" or has_clouds) else "terrain"
         t0 = time.perf_counter()
         origins, normals = self._terrain_faces()
-        self.sky_view_mean = 1.0
-        sky_view = np.ones(len(normals))
-        if sky_view_dirs and self._sky > 0.0:
+        if sky_view is not None:
+            sky_view = np.asarray(sky_view, dtype=np.float64)
+            if sky_view.shape != (len(normals),):
+                raise ValueError(f"sky_view must be ({len(normals)},) (one per terrain face), "
+                                 f"got {sky_view.shape}")
+        elif sky_view_dirs and self._sky > 0.0:
             sky_view = self._bake_sky_view(origins, normals, sky_view_dirs)
-            self.sky_view_mean = float(sky_view.mean())
+        else:
+            sky_view = np.ones(len(normals))
+        #: the per-face sky-view factor (pass it to another caster of the same renderer)
+        self.sky_view = sky_view
+        self.sky_view_mean = float(sky_view.mean())
         self.sky_view_s = time.perf_counter() - t0
         mi, dr = self._mi, self._dr
         self._sky_view = mi.Float(sky_view.astype(np.float32))

@@ -109,14 +109,15 @@ def line_rate_for(camera: CameraModel, imager: TdiImager, t_s: float, height_fn:
     return synchronous_line_rate_hz(v)
 
 
-def _columns(cols, n_max: int) -> np.ndarray:
-    c = np.atleast_1d(np.asarray(cols))
+def _indices(values, n_max: int, name: str = "cols") -> np.ndarray:
+    """Detector rows or columns (N,) as float64, checked against the imager's n_max."""
+    c = np.atleast_1d(np.asarray(values))
     if c.ndim != 1 or len(c) == 0:
-        raise ValueError("cols must be a non-empty 1-D array of detector columns")
+        raise ValueError(f"{name} must be a non-empty 1-D array of detector {name}")
     if not np.all(np.isfinite(c)):
-        raise ValueError("cols must be finite")
+        raise ValueError(f"{name} must be finite")
     if c.min() < -0.5 or c.max() > n_max - 0.5:
-        raise ValueError(f"cols must lie on the imager's {n_max} columns")
+        raise ValueError(f"{name} must lie on the imager's {n_max} {name}")
     return c.astype(np.float64)
 
 
@@ -138,7 +139,7 @@ def iter_strip(caster: Caster, camera: CameraModel, imager: TdiImager, t0_s: flo
     height = height_fn or caster.terrain.height_at  # type: ignore[attr-defined]
     cam = imager_camera(camera, imager)
     fp = cam.focal_plane
-    cols = _columns(cols, fp.cols)
+    cols = _indices(cols, fp.cols)
     rate = line_rate_for(camera, imager, t0_s, height, line_rate_hz)
     sampling = tdi_sampling(imager, rate, samples_per_line, footprint)
     s = sampling.samples
@@ -255,8 +256,8 @@ def render_frame(caster: Caster, camera: CameraModel, imager: FrameImager, t0_s:
     height = height_fn or caster.terrain.height_at  # type: ignore[attr-defined]
     cam = imager_camera(camera, imager)
     fp = cam.focal_plane
-    rows = _columns(rows, fp.rows)
-    cols = _columns(cols, fp.cols)
+    rows = _indices(rows, fp.rows, "rows")
+    cols = _indices(cols, fp.cols)
     sampling = frame_sampling(imager, samples, footprint)
     t = t0_s + sampling.tau_s
     off = sampling.subpixel_px + stage_at(stage_offset_px, t)

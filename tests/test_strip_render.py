@@ -122,6 +122,15 @@ def test_truth_offset_signs_for_stage_and_nominal():
     # rows per line ~1 (synchronous within the 8296 Hz guess): 2 % tolerance
     assert off[..., 0] == pytest.approx(np.full(off.shape[:-1], -0.25), rel=0.02)
     assert off[..., 1] == pytest.approx(np.full(off.shape[:-1], -0.4), abs=1e-6)
+    # a frame imager: the detector at p looks at p + s, the static frame's pixel p + s
+    from camera.linescan import frame_offset_px, frame_sampling
+
+    fim = FrameImager(rows=64, cols=64, exposure_s=1e-3)
+    foff = frame_offset_px(cam, fim, frame_sampling(fim, 4), 0.0,
+                           np.array([[0.0, 0.0], [63.0, 40.0]]), height_fn,
+                           stage_offset_px=lambda t: np.broadcast_to(stage, t.shape + (2,)),
+                           nominal=True)
+    assert np.abs(foff - stage).max() < 1e-6
 
 
 # --------------------------------------------------------------------------- rendering
@@ -297,3 +306,29 @@ def test_mean_level_matches_a_tracker_render():
         out[path] = res.radiance.astype(np.float64)
     rel = np.abs(out["terrain"] / out["general"] - 1.0)
     assert np.median(rel) < 1e-4 and np.mean(rel > 1e-3) < 0.02
+
+
+def test_expose_as_the_tracker_frames():
+    """Optics MTF, electrons, noise and quantisation through the sensor model, seeded."""
+    from camera.optics import Optics
+    from camera.sensor import Radiometry, SensorModel
+    from scene.strip import expose
+
+    rad = 0.08 + 0.02 * np.sin(np.arange(64 * 64).reshape(64, 64) / 7.0)
+    sensor = SensorModel(mean_signal_dn=400.0, noise_sigma_dn=2.0)
+    optics = Optics()
+    gain = sensor.gain_for(optics.apply(rad))
+    a = expose(rad, optics, sensor, np.random.default_rng(1), 32 / 8296.0, gain_e=gain)
+    b = expose(rad, optics, sensor, np.random.default_rng(1), 32 / 8296.0, gain_e=gain)
+    assert a.dtype == np.uint16 and np.array_equal(a, b)
+    assert a.mean() == pytest.approx(400.0, abs=1.0)
+    assert np.std(a.astype(float) - optics.apply(rad) * gain / 4.0) == pytest.approx(2.0, rel=0.1)
+    radiometry, t_int = Radiometry(), 4 / 8296.0  # 4 stages: below the full well here
+    phys = expose(rad, optics, SensorModel(noise_model="physical"), np.random.default_rng(2),
+                  t_int, radiometry=radiometry)
+    e = radiometry.electrons_per_s(optics.apply(rad), optics.f_number, optics.transmission,
+                                   optics.pixel_pitch_m, optics.wavelength_m) * t_int
+    assert e.max() < 20000.0
+    assert phys.mean() == pytest.approx(e.mean() / 4.0 + 50.0 * t_int / 4.0, rel=0.01)
+    with pytest.raises(ValueError, match="exactly one"):
+        expose(rad, optics, sensor, np.random.default_rng(1), 1e-3)

@@ -61,11 +61,16 @@ def camera(cols: int, stages: int) -> CameraModel:
                        LocalFrame(35.0, 10.0, 0.0), fp)
 
 
-def peak_rss_mb() -> float:
+def _status_mb(key: str) -> float:
     for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmHWM:"):
+        if line.startswith(key + ":"):
             return int(line.split()[1]) / 1024.0
     return float("nan")
+
+
+def peak_rss_mb() -> float:
+    """This process's peak resident memory since start or the last :func:`reset_peak`."""
+    return _status_mb("VmHWM")
 
 
 def reset_peak() -> bool:
@@ -139,12 +144,14 @@ def main() -> None:
     can_reset = True
     for n in ((256, 1024) if args.quick else (1024, 4096)):
         can_reset &= reset_peak()
+        before = _status_mb("VmRSS")
         t0 = time.perf_counter()
         t0_s = -(n / 2 + stages / 2) / 8296.0
         acc = 0.0
         for ch in iter_strip(caster, cam, imager, t0_s, n, col_ids, spl):
             acc += float(ch.radiance.sum())  # use the chunk, then drop it
-        mem[n] = {"wall_s": time.perf_counter() - t0, "peak_rss_mb": peak_rss_mb()}
+        mem[n] = {"wall_s": time.perf_counter() - t0, "rss_before_mb": before,
+                  "peak_rss_mb": peak_rss_mb()}
     out["streamed"] = mem
     out["peak_reset_worked"] = can_reset
     out["load_average_end"] = os.getloadavg()
@@ -163,7 +170,8 @@ def main() -> None:
           f"{p['hit_fraction']:.8f} ({p['hits_after_recast']:.8f} after re-cast), "
           f"peak RSS {p['peak_rss_mb']:.0f} MB")
     for n, m in mem.items():
-        print(f"streamed {n:5d} lines: {m['wall_s']:.1f} s, peak RSS {m['peak_rss_mb']:.0f} MB")
+        print(f"streamed {n:5d} lines: {m['wall_s']:.1f} s, resident before "
+              f"{m['rss_before_mb']:.0f} MB, peak {m['peak_rss_mb']:.0f} MB")
     dest = ROOT / "benchmarks" / "out"
     dest.mkdir(parents=True, exist_ok=True)
     (dest / "strip.json").write_text(json.dumps(out, indent=1, default=float))

@@ -213,6 +213,26 @@ def jitter_strips(caster):
     return cam, rate, t0, margin, static, true
 
 
+def stage_fn(t):
+    """A stage trajectory (row, col) px that moves inside the lines (70 and 50 Hz)."""
+    t = np.asarray(t, dtype=np.float64)
+    return np.stack([0.2 * np.sin(2 * np.pi * 70.0 * t) + 0.1,
+                     0.15 * np.cos(2 * np.pi * 50.0 * t) - 0.05], axis=-1)
+
+
+def measure_against_static(img, static, margin):
+    coef = spline_filter(static.radiance.astype(np.float64), order=5)
+    rows = np.arange(img.shape[0])[:, None] + margin
+    cols = np.arange(img.shape[1])[None, :] + margin
+
+    def ref(dl, dc):
+        return map_coordinates(coef, [rows + dl[:, None] + 0 * cols,
+                                      cols + dc[:, None] + 0 * rows],
+                               order=5, prefilter=False, mode="nearest")
+
+    return fit_line_shifts(img.astype(np.float64), ref)
+
+
 def test_jitter_line_offsets_match_the_truth(jitter_strips):
     """0.3 px sinusoids on pitch (130 Hz) and roll (97 Hz): the per-line offset of the
     rendered strip against the rendered static strip (Gauss-Newton on a quintic spline of the
@@ -222,16 +242,7 @@ def test_jitter_line_offsets_match_the_truth(jitter_strips):
     column c - roll_px)."""
     cam, rate, t0, margin, static, true = jitter_strips
     assert true.hit_fraction > 0.999999 and np.isfinite(true.radiance).all()
-    coef = spline_filter(static.radiance.astype(np.float64), order=5)
-    rows = np.arange(N_LINES)[:, None] + margin
-    cols = np.arange(N_COLS)[None, :] + margin
-
-    def ref(dl, dc):
-        return map_coordinates(coef, [rows + dl[:, None] + 0 * cols,
-                                      cols + dc[:, None] + 0 * rows],
-                               order=5, prefilter=False, mode="nearest")
-
-    measured = fit_line_shifts(true.radiance.astype(np.float64), ref)
+    measured = measure_against_static(true.radiance, static, margin)
     truth = true.line_offset_px
     err = measured - truth
     rms = np.sqrt(np.mean(err**2, axis=0))
@@ -246,6 +257,23 @@ def test_jitter_line_offsets_match_the_truth(jitter_strips):
     assert np.corrcoef(truth[:, 1], -jit_px[:, 0])[0, 1] > 0.99  # roll -> -col offset
     expected = np.stack([jit_px[:, 1], -jit_px[:, 0]], axis=-1)
     assert np.abs(truth - expected).max() < 0.02
+
+
+def test_closed_loop_stage_offsets_match_the_truth(caster, jitter_strips):
+    """The same jitter with a stage moving inside the lines (the closed-loop call): the
+    rendered strip's offset against the static strip equals line_offset_px (< 0.01 px RMS),
+    and differs from the open-loop one by about -stage_row, +stage_col."""
+    from scene.strip import render_strip
+
+    cam, rate, t0, margin, static, true = jitter_strips
+    closed = render_strip(caster, cam, IMAGER, t0, N_LINES, COLS, S, stage_offset_px=stage_fn)
+    measured = measure_against_static(closed.radiance, static, margin)
+    rms = np.sqrt(np.mean((measured - closed.line_offset_px) ** 2, axis=0))
+    assert rms.max() < 0.01, rms
+    smp = tdi_sampling(IMAGER, rate, S)
+    st = stage_fn(smp.times_s(t0, np.arange(N_LINES))).mean(axis=1)
+    diff = closed.line_offset_px - true.line_offset_px
+    assert np.abs(diff - st * [-1.0, 1.0]).max() < 0.01
 
 
 def test_chunks_resume_identically(caster, jitter_strips):

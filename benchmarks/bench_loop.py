@@ -2,9 +2,9 @@
 
     .venv/bin/python benchmarks/bench_loop.py [--quick] [--out benchmarks/out/loop]
 
-Writes loop.json and loop.md (the tables quoted in docs/loop-targets.md) and rejection PNGs. Figures are
-measured here, never asserted in tests. About 10 minutes on 2 cores (--quick: the analytic
-studies only, ~3 minutes).
+Writes loop.json and loop.md (the tables quoted in docs/loop-targets.md) and rejection PNGs.
+Figures are measured here, never asserted in tests. About 10 minutes on 2 cores (--quick: the
+analytic studies only, ~3 minutes).
 """
 
 from __future__ import annotations

@@ -192,12 +192,15 @@ def validate(
 ) -> None:
     """Check a scenario file, its geometry and its loop design without rendering; print the
     run's size (frames, peak memory)."""
+    from imc.wiring.advisories import advisories
     from imc.wiring.budget import LIGHT_TEXELS
     from imc.wiring.build import build_loop, build_models
 
     sc = load_scenario(scenario)
     est = _size_check(sc, force)
-    parts = build_loop(build_models(sc, light=True))
+    models = build_models(sc, light=True)
+    parts = build_loop(models)
+    figures, warnings = advisories(models, parts)
     mg = parts.margins
     name = short(str(scenario), 200)
     loop = (f"loop {sc.compensation.controller.kind}: {_margins_text(mg)}"
@@ -205,10 +208,24 @@ def validate(
     out.print(f"{name}: ok ({sc.n_frames} frames, {sc.correlator.n_blocks} blocks; {loop})",
               highlight=False, soft_wrap=True)
     out.print(f"run size: {est.text()}", highlight=False, soft_wrap=True)
+    if sc.compensation.enabled:
+        out.print(_lock_text(figures["lock"], sc), highlight=False, soft_wrap=True)
+    for line in warnings:
+        err.print(f"[yellow]warning:[/] {line}", highlight=False, soft_wrap=True)
     if est.texels > LIGHT_TEXELS and sc.scene.kind != "geotiff":
         out.print(f"terrain not built ({est.texels / 1e6:.1f} M texels): the geometry was "
                   "checked on a flat tile of the same size; `imc run` checks it on the terrain",
                   highlight=False, soft_wrap=True)
+
+
+def _lock_text(lock: dict, sc) -> str:
+    """The loop's lock time against the main imager's start, one line."""
+    t = lock["analytic_s"]
+    text = (f"loop locks in {t:.3g} s (analytic step response within {lock['band']:.0%})"
+            if t is not None else "loop never locks (analytic model)")
+    if lock.get("measured_s") is not None:
+        text += f", {lock['measured_s']:.3g} s in this run"
+    return text + f"; main imager from {sc.camera.main_imager.start_s:g} s"
 
 
 def _margins_text(mg) -> str:
@@ -291,6 +308,13 @@ def run(
               f"{_num(t['median_crlb_px'][1], '.4f')} px)")
     out.print(f"residual RMS reduced {_num(metrics['rms_reduction'], '.1f')}x by the loop")
     lp = metrics["loop"]
+    if sc.compensation.enabled:
+        ex = metrics["exposures"]
+        out.print(_lock_text(lp["lock"], sc) + f"; {ex['worse_than_open']} of {ex['n']} "
+                  "main-imager exposures worse with the loop than without", highlight=False)
+        for d in lp.get("supervisor", {}).get("decisions", []):
+            out.print(f"supervisor at {d['t_s']:.3f} s: {d['action']} ({d['reason']})",
+                      highlight=False)
     out.print(f"loop: {lp['fidelity']} plant, {lp['estimator']} estimator, {lp['controller']} "
               f"controller, {lp['actuator']} stage; {lp['measurement_rate_hz']:g} "
               f"measurements/s, latency {lp['latency_s'] * 1e3:.1f} ms; stage at its stroke "

@@ -19,6 +19,7 @@ from compensation.loop import simulate
 from imc.outputs.report import summarize, write_outputs
 from imc.scenario import Scenario
 from imc.wiring import streams
+from imc.wiring.advisories import advisories
 from imc.wiring.build import Models, build_loop, build_models
 from imc.wiring.checkpoint import ChunkStore
 from imc.wiring.rendered_plant import build_plant
@@ -71,6 +72,9 @@ def run_scenario(sc: Scenario, out: Path, save_frames: bool = False, fresh: bool
     link_stats = None
     try:
         parts = build_loop(m, link_channel(m, link) if link is not None else None, sigma)
+        if warn is not None:
+            for line in advisories(m, parts)[1]:
+                warn(line)
         store = ChunkStore(out / "checkpoint", m.scenario.digest(), warn)
         if fresh:
             store.reset()
@@ -83,7 +87,8 @@ def run_scenario(sc: Scenario, out: Path, save_frames: bool = False, fresh: bool
         res = simulate(plant, parts.estimator, parts.controller, parts.actuator,
                        parts.transport, parts.timeline, enabled=sc.compensation.enabled,
                        resume=chunks or None, on_chunk=on_chunk,
-                       chunk_frames=CHECKPOINT_EVERY, progress=progress)
+                       chunk_frames=CHECKPOINT_EVERY, progress=progress,
+                       supervisor=parts.supervisor)
     finally:
         if link is not None:
             link_stats = link.stats()

@@ -696,6 +696,15 @@ class EstimatorConfig(BlockConfig):
     kind: str = Field("motion_field", description="motion_field or mean")
 
 
+class SupervisorConfig(BlockConfig):
+    """An optional watch on the loop: residual (the residual's running RMS against the
+    pseudo-open-loop motion's; when the loop amplifies what it should reject it holds the
+    stage, opens the loop or de-rates the controller; its decisions go to metrics.json)."""
+
+    ROLE: ClassVar[str] = "supervisor"
+    kind: str = Field("residual", description="residual")
+
+
 class TransportConfig(_Model):
     """Latency and losses between the tracker and the controller (the correlator device's
     own pipeline comes from correlator.timing)."""
@@ -718,6 +727,8 @@ class CompensationConfig(_Model):
     actuator: ActuatorConfig = ActuatorConfig(kind="ideal")
     estimator: EstimatorConfig = EstimatorConfig(kind="motion_field")
     transport: TransportConfig = TransportConfig()
+    supervisor: SupervisorConfig | None = Field(None, description="an optional supervisor "
+                                                "block (none: the loop is not watched)")
     min_phase_margin_deg: float = Field(20.0, ge=0.0, le=90.0, description="a design with "
                                         "less phase margin is refused, deg")
     min_modulus_margin: float = Field(0.25, ge=0.0, le=1.0, description="a design whose "
@@ -773,7 +784,7 @@ class MetricsConfig(_Model):
 METRIC_SECTIONS = ("scenario", "frames", "blocks", "compensation_enabled",
                    "without_compensation", "with_compensation", "rms_reduction", "tracker",
                    "loop", "main_imager_start_s", "geometry", "correlator_device", "link",
-                   "main_imager_blur")
+                   "main_imager_blur", "exposures")
 
 
 class BoundConfig(_Model):

@@ -457,7 +457,6 @@ def write_geotiff(path: str | Path, data: np.ndarray, x0: float, y0: float, dx: 
     """
     import rasterio
     from affine import Affine
-
     from rasterio.dtypes import check_dtype
 
     del geographic

@@ -14,9 +14,10 @@ ALLOWED = {
     "scene": {"scene", "camera", "orbit"},
     "correlator": {"correlator"},
     "compensation": {"compensation"},
+    "ground": {"ground", "compensation"},
     "imc": {"imc", "orbit", "scene", "camera", "correlator", "compensation", "ground"},
 }
-PACKAGES = set(ALLOWED) | {"ground"}
+PACKAGES = set(ALLOWED)
 
 
 def _imports(path: Path) -> set[str]:

@@ -10,11 +10,11 @@ import pytest
 
 from compensation.actuators import IdealStage
 from compensation.analytic import LoopModel
+from compensation.analytic_plant import AnalyticPlant, sinusoids
 from compensation.controllers import Integrator, KalmanPredictor, find_lines
 from compensation.estimators import MeanEstimator
 from compensation.lock import analytic_lock_time, run_lock_time, running_rms
 from compensation.loop import Timeline, simulate
-from compensation.plants import AnalyticPlant, sinusoids
 from compensation.registry import build, kinds
 from compensation.supervisor import ResidualSupervisor
 from compensation.transport import Transport

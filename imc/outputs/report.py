@@ -7,8 +7,9 @@ from pathlib import Path
 import numpy as np
 
 from compensation.loop import LoopResult
-from compensation.metrics import residual_metrics
+from compensation.metrics import motion_mtf, residual_metrics
 from imc.io import write_csv, write_json, write_npz
+from imc.wiring.advisories import advisories
 from imc.wiring.build import LoopParts, Models
 from imc.wiring.truth import Truth
 
@@ -68,8 +69,14 @@ def summarize(m: Models, res: LoopResult, truth: Truth, parts: LoopParts,
             "lines_hz": _lines(res),
         },
         "main_imager_start_s": float(sc.camera.main_imager.start_s),
+        "exposures": exposure_comparison(truth, res.trajectory),
         "geometry": geometry_summary(m),
     }
+    figures, _ = advisories(m, parts)
+    out["loop"]["lock"] = {**figures["lock"], **run_lock(m, truth)}
+    out["loop"]["correlator_budget"] = figures["correlator_budget"]
+    if res.supervisor or getattr(parts, "supervisor", None) is not None:
+        out["loop"]["supervisor"] = {"decisions": list(res.supervisor)}
     if m.schedule is not None:
         done = m.schedule.done[1:]
         lat = (m.schedule.deliver_s - (m.frame_t_s + m.exposure_s)[:, None])[1:][done]
@@ -84,6 +91,53 @@ def summarize(m: Models, res: LoopResult, truth: Truth, parts: LoopParts,
     if link_stats is not None:
         out["link"] = dict(link_stats)
     return out
+
+
+#: an exposure counts as worse with the loop than without when its motion MTF at Nyquist
+#: (either axis) is lower by more than this (ties near 1 are not counted)
+WORSE_MTF_TOLERANCE = 1e-3
+#: the most worse exposures listed by start time in metrics.json
+WORSE_LISTED = 20
+
+
+def exposure_comparison(truth: Truth, trajectory) -> dict:
+    """Per main-imager exposure (integration window), the motion MTF at Nyquist (row, col)
+    without and with the loop; the exposures the loop made worse, counted and listed (start
+    time s, MTF open, MTF closed)."""
+    wins, idx = np.unique(truth.window, return_inverse=True)
+    order = np.argsort(idx, kind="stable")
+    counts = np.bincount(idx)
+    if len(wins) == 0 or np.any(counts != counts[0]):
+        return {"n": int(len(wins)), "worse_than_open": None, "worse": []}
+    shape = (len(wins), int(counts[0]), 2)
+    t = truth.t_s[order].reshape(shape[:2])
+    mtf = {}
+    for name, traj in (("open", None), ("closed", trajectory)):
+        r = truth.residual_px(traj)[order].reshape(shape)
+        mtf[name] = np.stack([motion_mtf(r, axis=0), motion_mtf(r, axis=1)], axis=-1)
+    worse = np.any(mtf["closed"] < mtf["open"] - WORSE_MTF_TOLERANCE, axis=1)
+    listed = [{"start_s": float(t[i, 0]), "mtf_nyquist_open": _floats(mtf["open"][i]),
+               "mtf_nyquist_closed": _floats(mtf["closed"][i])}
+              for i in np.flatnonzero(worse)[:WORSE_LISTED]]
+    return {"n": int(len(wins)), "worse_than_open": int(worse.sum()),
+            "tolerance": WORSE_MTF_TOLERANCE,
+            "worst_closed_minus_open": float(np.min(mtf["closed"] - mtf["open"])),
+            "worse": listed}
+
+
+def run_lock(m: Models, truth: Truth) -> dict:
+    """The run's own lock time (:func:`compensation.lock.run_lock_time`) on the true residual
+    the tracker sees, frame by frame (the blocks' true shifts averaged), s."""
+    from compensation.lock import run_lock_time
+
+    r = np.nanmean(truth.meas_px[1:], axis=1)
+    ok = np.all(np.isfinite(r), axis=1)
+    window = max(5.0 / m.rate_hz, m.exposure_s)
+    if ok.sum() < 10 or not m.scenario.compensation.enabled:
+        return {"measured_s": None}
+    lock = run_lock_time(m.frame_mid_s[1:][ok], r[ok], window_s=window)
+    return {"measured_s": _floats([lock.lock_s])[0], "measured_band": lock.band,
+            "steady_rms_px": float(lock.steady_rms_px)}
 
 
 def _estimate_error(m: Models, res: LoopResult, truth: Truth) -> list[float | None]:

@@ -402,6 +402,7 @@ class LoopParts:
     timeline: object
     model: object  # compensation.analytic.LoopModel (regular-sampling approximation)
     margins: object  # compensation.analytic.Margins
+    supervisor: object | None = None  # compensation.supervisor block, if the scenario has one
 
 
 def piezo_update_hz(rate_hz: float, resonance_hz: float, drive_hz: float = 0.0) -> float:
@@ -456,6 +457,8 @@ def build_loop(m: Models, channel=None, plant_sigma_px: float | None = None) -> 
         if "lead_s" in _field_names(comp.controller.kind) and cparams.get("lead_s") is None:
             cparams["lead_s"] = actuator.lag_s  # a predictor's lead: the stage's own lag
         controller = make_block("controller", comp.controller.kind, cparams, wired)
+        supervisor = (make_block("supervisor", comp.supervisor.kind, comp.supervisor.params(),
+                                 wired) if comp.supervisor is not None else None)
     except (TypeError, ValueError) as e:
         raise ScenarioError(f"compensation: {str(e).replace('@', '')}") from None
     sigma = (plant_sigma_px or getattr(controller, "noise_px", None) or 0.02)
@@ -467,7 +470,8 @@ def build_loop(m: Models, channel=None, plant_sigma_px: float | None = None) -> 
     margins = model.margins()
     if comp.enabled:
         _check_margins(comp, margins, getattr(controller, "TUNING", "kind"))
-    return LoopParts(estimator, controller, actuator, transport, timeline, model, margins)
+    return LoopParts(estimator, controller, actuator, transport, timeline, model, margins,
+                     supervisor)
 
 
 def _field_names(controller_kind: str) -> set[str]:

@@ -105,6 +105,10 @@ def run_scenario(sc: Scenario, out: Path, save_frames: bool = False, fresh: bool
         from imc.wiring.blur import write_blur_npz
 
         metrics["main_imager_blur"] = write_blur_npz(out / "blur.npz", truth, res.trajectory)
+    if sc.product.enabled:
+        from imc.wiring.product import product_study
+
+        metrics["product"] = product_study(m, res, out, fresh)
     frames = getattr(plant, "frames", None)
     ref_corners = getattr(plant, "ref_corners_rec", None)
     files = write_outputs(m, res, truth, metrics, out, frames, ref_corners, save_frames, rerun,

@@ -769,6 +769,29 @@ class PlantConfig(_Model):
                                    "predicted error on the scene's texture)")
 
 
+class ProductConfig(_Model):
+    """The main imager's image product: rendered as the camera forms it (a TDI strip line by
+    line, or a frame window), static / open loop / closed loop, corrected on the ground from
+    the loop's motion record, restored, and judged (MTF, RER, NIIRS): product/ and
+    metrics.json product."""
+
+    enabled: bool = Field(False, description="render and process the product")
+    lines: int = Field(512, ge=128, le=65536, description="TDI: lines of the strip; frame: "
+                       "rows of the window (centred on the imager)")
+    cols: int = Field(512, ge=128, le=16384, description="detector columns (centred; the "
+                      "quality target's edges need 128 at least)")
+    samples: int = Field(8, ge=1, le=64, description="sampling instants per line (TDI: over "
+                         "its N-stage integration) or per exposure (frame)")
+    start_s: float | None = Field(None, ge=0.0, description="TDI: the first line's start; "
+                                  "frame: the exposure's start, s (default: TDI strips "
+                                  "centred on the scene centre, from main_imager.start_s on; "
+                                  "a frame at main_imager.start_s)")
+    run_lines: int = Field(128, ge=8, le=65536, description="lines per restoration PSF (the "
+                           "PSF is estimated and deconvolved per run of lines)")
+    restore: Literal["wiener", "richardson_lucy"] = Field(
+        "wiener", description="deconvolution (scikit-image): wiener or richardson_lucy")
+
+
 class MetricsConfig(_Model):
     samples_per_frame: int = Field(8, ge=2, le=256,
                                    description="truth samples per tracker exposure")
@@ -784,7 +807,7 @@ class MetricsConfig(_Model):
 METRIC_SECTIONS = ("scenario", "frames", "blocks", "compensation_enabled",
                    "without_compensation", "with_compensation", "rms_reduction", "tracker",
                    "loop", "main_imager_start_s", "geometry", "correlator_device", "link",
-                   "main_imager_blur", "exposures")
+                   "main_imager_blur", "exposures", "product")
 
 
 class BoundConfig(_Model):
@@ -849,6 +872,7 @@ class Scenario(_Model):
     compensation: CompensationConfig = CompensationConfig()
     plant: PlantConfig = PlantConfig()
     metrics: MetricsConfig = MetricsConfig()
+    product: ProductConfig = ProductConfig()
     expect: dict[str, BoundConfig] = Field(
         {}, description="expectations: metric path of metrics.json (e.g. "
         "with_compensation.rms_total_px, tracker.rms_error_px.0) -> bound; `imc run` prints "

@@ -447,8 +447,10 @@ def terrain_from_geotiff(ortho_path: str | Path, dem_path: str | Path | None,
 def write_geotiff(path: str | Path, data: np.ndarray, x0: float, y0: float, dx: float,
                   dy: float, crs: int | str = 32632, geographic: bool = False,
                   nodata: float | None = None, tiled: bool = False,
-                  compress: str | None = None, overviews: tuple[int, ...] = ()) -> None:
-    """Write a north-up GeoTIFF with rasterio (for examples and tests).
+                  compress: str | None = None, overviews: tuple[int, ...] = (),
+                  transform=None) -> None:
+    """Write a GeoTIFF with rasterio: north-up from ``x0, y0, dx, dy``, or on any affine grid
+    (``transform``, a rasterio/affine ``Affine``: a rotated image product).
 
     ``data``: (H, W) or (bands, H, W); ``x0, y0``: upper-left outer corner; ``dx, dy`` > 0
     pixel size in map units; ``crs``: an EPSG code or a WKT / PROJ string (``geographic`` is
@@ -474,7 +476,8 @@ def write_geotiff(path: str | Path, data: np.ndarray, x0: float, y0: float, dx: 
     profile = {"driver": "GTiff", "height": arr.shape[1], "width": arr.shape[2],
                "count": arr.shape[0], "dtype": arr.dtype,
                "crs": f"EPSG:{crs}" if isinstance(crs, int) else crs,
-               "transform": Affine(dx, 0.0, x0, 0.0, -dy, y0)}
+               "transform": transform if transform is not None
+               else Affine(dx, 0.0, x0, 0.0, -dy, y0)}
     if nodata is not None:
         profile["nodata"] = nodata
     if tiled:

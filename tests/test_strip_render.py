@@ -455,3 +455,13 @@ def test_stepped_clock_off_rate_offsets_match_the_truth(caster):
     err = measure_against_static(true.radiance, static, m) - true.line_offset_px
     assert np.sqrt(np.mean(err**2, axis=0)).max() < 0.01
     assert np.all(true.line_offset_px.std(axis=0) > 0.1)
+
+
+@pytest.mark.parametrize("n", [8, 16, 32])
+def test_footprint_offsets_are_not_ordered_with_time(n):
+    # a motion during the exposure must convolve with the footprint, not add to it: with
+    # the row offsets in time order a linear smear and the pixel become one longer box
+    lat = subpixel_lattice(n)
+    s = np.arange(n)
+    for k in range(2):
+        assert abs(np.corrcoef(s, lat[:, k])[0, 1]) < 0.5

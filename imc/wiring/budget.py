@@ -55,6 +55,11 @@ OPTICAL_BYTES_PER_PX = 40.0
 #: run of tests/test_robustness.py peaks at 937-942 MB with them, 439-516 MB without)
 BLUR_PATCH_PX = 192
 BLUR_IMAGES_BYTES = 300e6
+#: the main imager's product (imc.wiring.product): bytes per product pixel (rendered,
+#: exposed, corrected and restored versions of the scene and the target, the resampling's
+#: coordinates and the deconvolution's spectra), and the two ray casters' batches and scenes
+PRODUCT_BYTES_PER_PX = 400.0
+PRODUCT_BASE_BYTES = 400e6
 #: report.html and its figures (matplotlib, written by every run unless --no-report), bytes
 #: (measured: +90 MB on the quickstart)
 REPORT_BYTES = 150e6
@@ -240,6 +245,13 @@ def estimate_run(sc: Scenario) -> RunEstimate:
         base = RENDER_BASE_BYTES
         parts["blur images"] = (BLUR_IMAGES_BYTES + 8.0 * texels
                                 + 2 * BLUR_PATCH_PX**2 * (24.0 + 4.0 * sc.metrics.blur_spp))
+    if sc.product.enabled:
+        p = sc.product
+        base = RENDER_BASE_BYTES
+        target_lines = min(p.lines, max(p.cols, 256))
+        target_texels = (7.5 * max(target_lines, p.cols)) ** 2  # its tile, gsd / 5 texels
+        parts["product"] = (PRODUCT_BASE_BYTES + 4.0 * target_texels
+                            + PRODUCT_BYTES_PER_PX * (p.lines + target_lines) * p.cols)
     parts["report"] = REPORT_BYTES
     parts = {k: v for k, v in parts.items() if v > 0}
     # the terrain's generation temporaries are freed before the loop starts
@@ -299,6 +311,8 @@ def _fields_of(sc: Scenario, part: str) -> str:
                 "(and the tile's texels)")
     if part == "blur images":
         return "metrics.blur_images x metrics.blur_spp (the main imager's rendered patches)"
+    if part == "product":
+        return "product.lines x product.cols (the main imager's product)"
     if part == "report":
         return "the run's report (report.html and its figures; --no-report skips them)"
     if part == "plant":

@@ -26,6 +26,7 @@ STREAM_IDS = {
     "flight_sensor": 11,  # flight test: the second tracker sensor's noise, per frame
     "flight_render": 12,  # flight test: the second tracker sensor's render seed, per frame
     "texture_map": 13,  # texture-robustness map: shifts, blur and noise, per block
+    "product": 14,  # the main imager's product: detector noise, per scene (scene, target)
 }
 
 

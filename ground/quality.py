@@ -87,7 +87,8 @@ def edge_mtf(img: np.ndarray, oversample: int = 4, margin: int = 8):
     return f, spec / np.maximum(corr, 1e-6)
 
 
-def _at(f: np.ndarray, mtf: np.ndarray, f0: float) -> float:
+def value_at(f: np.ndarray, mtf: np.ndarray, f0: float) -> float:
+    """The curve (f, mtf) at frequency f0 (linear interpolation)."""
     return float(np.interp(f0, f, mtf))
 
 
@@ -147,7 +148,7 @@ def edge_figures(img: np.ndarray, oversample: int = 4, margin: int = 8) -> EdgeF
     a = _check_image(img, "img", min_size=2 * margin + 2 * ESF_HALF_PX)
     f, mtf = edge_mtf(a, oversample, margin)
     dist, esf, contrast = edge_spread(a, oversample, margin)
-    return EdgeFigures(mtf_nyquist=_at(f, mtf, NYQUIST), rer=rer_from_esf(dist, esf),
+    return EdgeFigures(mtf_nyquist=value_at(f, mtf, NYQUIST), rer=rer_from_esf(dist, esf),
                        overshoot_h=overshoot_from_esf(dist, esf), contrast=contrast)
 
 

@@ -200,6 +200,10 @@ def validate(
     est = _size_check(sc, force)
     models = build_models(sc, light=True)
     parts = build_loop(models)
+    if sc.product.enabled:
+        from imc.wiring.product import plan_product
+
+        plan_product(models)
     figures, warnings = advisories(models, parts)
     mg = parts.margins
     name = short(str(scenario), 200)
@@ -216,6 +220,26 @@ def validate(
         out.print(f"terrain not built ({est.texels / 1e6:.1f} M texels): the geometry was "
                   "checked on a flat tile of the same size; `imc run` checks it on the terrain",
                   highlight=False, soft_wrap=True)
+
+
+def _product_text(p: dict) -> str:
+    """The product's headline figures, a few lines."""
+    q, g = p["quality"], p["geometry"]
+    lines = [f"product: {p['kind']} {p['lines']} x {p['cols']} px, {p['rays'] / 1e6:.1f} M "
+             f"rays at {p['rays_per_s'] / 1e6:.1f} M/s (hit fraction {p['hit_fraction']:.7f})"]
+    for name, d in q.items():
+        lines.append(f"  {name:20s} MTF@Nyquist {_num(d['mtf_nyquist'][0], '.3f')} / "
+                     f"{_num(d['mtf_nyquist'][1], '.3f')}  NIIRS {_num(d['niirs'], '.3f')}"
+                     f" (loss {_num(d['niirs_loss'], '.3f')})  SSIM {_num(d['ssim'], '.4f')}")
+    for name, e in g.items():
+        lines.append(f"  {name} lines' offset error RMS row/col px: before "
+                     f"{_num(e['before']['rms_px'][0], '.4f')} / "
+                     f"{_num(e['before']['rms_px'][1], '.4f')}, after "
+                     f"{_num(e['after']['rms_px'][0], '.4f')} / "
+                     f"{_num(e['after']['rms_px'][1], '.4f')}, perfect record "
+                     f"{_num(e['after_perfect_record']['rms_px'][0], '.4f')} / "
+                     f"{_num(e['after_perfect_record']['rms_px'][1], '.4f')}")
+    return "\n".join(lines)
 
 
 def _lock_text(lock: dict, sc) -> str:
@@ -330,6 +354,8 @@ def run(
         lk = metrics["link"]
         out.print(f"serial link: {lk['records']} records, {lk['lost']} lost, "
                   f"{lk['crc_errors']} CRC errors, {lk['reconnects']} reconnects")
+    if "product" in metrics:
+        out.print(_product_text(metrics["product"]), highlight=False)
     resumed = run_info["resumed_from_frame"]
     out.print(f"wall time {run_info['wall_s']:.1f} s (rendering {run_info['render_s']:.1f} s; "
               f"checkpoint {run_info['checkpoint_bytes'] / 1e6:.1f} MB)"

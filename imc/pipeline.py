@@ -58,6 +58,10 @@ def run_scenario(sc: Scenario, out: Path, save_frames: bool = False, fresh: bool
     chunks of the same scenario in ``out`` unless ``fresh``."""
     t_start = time.perf_counter()
     m = build_models(sc)
+    if sc.product.enabled:  # refuse a product that does not fit before rendering anything
+        from imc.wiring.product import plan_product
+
+        plan_product(m)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     plant = build_plant(m)
@@ -114,6 +118,7 @@ def run_scenario(sc: Scenario, out: Path, save_frames: bool = False, fresh: bool
     files = write_outputs(m, res, truth, metrics, out, frames, ref_corners, save_frames, rerun,
                           loop_model=parts.model)
     files.append(out / "blur.npz")
+    files.extend(Path(f) for f in metrics.get("product", {}).get("files", ()))
     if (out / "main_imager.png").exists() and sc.metrics.blur_images:
         files.append(out / "main_imager.png")
     info = {"wall_s": time.perf_counter() - t_start, "loop_s": t_loop - t_start,

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from imc.io import atomic_write, load_sweep_results
 from imc.outputs.figures import Figure, run_figures, sweep_figures
+from imc.outputs.product_report import product_html, write_quicklook
 
 CSS = """
 body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;color:#222;padding:0 1em}
@@ -100,9 +101,26 @@ def write_run_report(run_dir: Path) -> Path:
         ("estimate error RMS (px)", _num(lp.get("estimate_rms_error_px"))),
         *((html.escape(k.replace("_", " ")), _num(v)) for k, v in an.items()
           if isinstance(v, int | float | type(None)))]))
+    ex, lock = m.get("exposures"), lp.get("lock")
+    if ex and lock and m.get("compensation_enabled"):
+        worse = ", ".join(f"{w['start_s']:.3g} s" for w in ex.get("worse", []))
+        parts.append(f"<p>The loop locks in {_num(lock.get('analytic_s'), '.3g')} s (analytic "
+                     f"model), {_num(lock.get('measured_s'), '.3g')} s in this run; the main "
+                     f"imager starts at {_num(m.get('main_imager_start_s'), '.3g')} s. "
+                     f"{_num(ex.get('worse_than_open'))} of {_num(ex.get('n'))} main-imager "
+                     "exposures are worse with the loop than without"
+                     + (f" (from {html.escape(worse)})" if worse else "") + ".</p>")
     exp = run_dir / EXPECTATIONS
     if exp.exists():
         parts.append(expectations_html(json.loads(exp.read_text())))
+    if m.get("product"):
+        parts.append(product_html(m, _table))
+        if (quick := write_quicklook(run_dir)) is not None:
+            parts.extend(_figures_html([Figure(quick, "The product, side by side", (
+                "The main imager's product static, open and closed loop, ground corrected "
+                "and restored (one grey scale), over each line's offset on the nominal grid: "
+                "the camera model's truth and the ground's estimate from the loop's "
+                "record."))]))
     parts.extend(_figures_html(run_figures(run_dir)))
     out = run_dir / "report.html"
     page = _page(f"imcsim run: {m.get('scenario', run_dir.name)}", parts)

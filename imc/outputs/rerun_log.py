@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from imc.io import atomic_write
+from imc.outputs.product_report import log_product
 
 if TYPE_CHECKING:
     from compensation.loop import LoopResult
@@ -50,7 +51,7 @@ _COLORS = {"true": (220, 60, 50), "estimate": (120, 120, 120), "stage": (240, 16
            "residual": (40, 110, 220)}
 
 
-def blueprint(n_blocks: int, has_render: bool):
+def blueprint(n_blocks: int, has_render: bool, has_product: bool = False):
     """The default layout: tracker frame and main imager left, motion and tracker errors in
     the middle, the 3-D views right."""
     import rerun.blueprint as rrb
@@ -62,6 +63,11 @@ def blueprint(n_blocks: int, has_render: bool):
     if has_render:
         imager.append(rrb.Spatial2DView(name="main imager rendered (static, open, closed)",
                                         origin="main_imager/rendered"))
+    if has_product:
+        imager.append(rrb.Spatial2DView(name="product (static, open, closed, corrected)",
+                                        origin="product", contents=["+ product/*"]))
+        imager.append(rrb.TimeSeriesView(name="product: each line's offset (px)",
+                                         origin="product/offset"))
     left.append(rrb.Tabs(*imager))
     motion = [rrb.TimeSeriesView(name=f"{a} motion at the main imager (px)",
                                  origin=f"motion/{a}") for a in AXES]
@@ -235,7 +241,8 @@ def write_recording(path: Path, m: Models, res: LoopResult, truth: Truth,
         t, mo, st = uniform_motion(m, res.trajectory)
         series = {"t_s": t, "motion_px": mo, "stage_px": st}
     has_render = (path.parent / "main_imager.png").exists()
-    bp = blueprint(res.record.shift_px.shape[1], has_render)
+    has_product = (path.parent / "product" / "product.npz").exists()
+    bp = blueprint(res.record.shift_px.shape[1], has_render, has_product)
 
     def write(tmp: Path) -> None:
         rec = rr.RecordingStream(APP_ID, recording_id=m.scenario.name)
@@ -243,6 +250,7 @@ def write_recording(path: Path, m: Models, res: LoopResult, truth: Truth,
         _log_tracker(rec, rr, m, res, truth, frames, ref_corners)
         _log_motion(rec, rr, m, res, series)
         _log_imager(rec, rr, path.parent)
+        log_product(rec, rr, path.parent)
         _log_world(rec, rr, m)
         rec.flush()
         rec.disconnect()

@@ -18,6 +18,7 @@ import numpy as np
 
 from compensation.loop import Trajectory
 from compensation.metrics import NYQUIST, motion_mtf
+from ground.quality import edge_mtf, value_at
 from imc.io import atomic_write, write_npz
 from imc.wiring.build import Models
 from imc.wiring.truth import Truth
@@ -132,39 +133,6 @@ def render_patch(m: Models, renderer, t0_s: float, t1_s: float,
     return m.optics.apply(img)
 
 
-def edge_mtf(img: np.ndarray, oversample: int = 4, margin: int = 8):
-    """(freqs cycles/px, MTF) across a nearly horizontal edge (ISO 12233 slanted edge)."""
-    im = np.asarray(img, dtype=np.float64)[margin:-margin, margin:-margin]
-    d = np.diff(im, axis=0)
-    rows = np.arange(d.shape[0]) + 0.5
-    w = np.abs(d)
-    pos = (w * rows[:, None]).sum(axis=0) / np.maximum(w.sum(axis=0), 1e-12)
-    cols = np.arange(im.shape[1])
-    fit = np.polyfit(cols, pos, 1)
-    rr, cc = np.mgrid[0:im.shape[0], 0:im.shape[1]]
-    dist = (rr - np.polyval(fit, cc)) / np.sqrt(1.0 + fit[0] ** 2)
-    b = np.round(dist * oversample).astype(int)
-    lo = b.min()
-    counts = np.bincount((b - lo).ravel())
-    esf = np.bincount((b - lo).ravel(), weights=im.ravel()) / np.maximum(counts, 1)
-    keep = counts > 0
-    idx = np.flatnonzero(keep)
-    esf = np.interp(np.arange(len(esf)), idx, esf[keep])
-    half = 16 * oversample  # +-16 px around the edge
-    centre = -lo
-    esf = esf[max(0, centre - half):centre + half]
-    lsf = np.diff(esf) * np.hamming(len(esf) - 1)
-    spec = np.abs(np.fft.rfft(lsf))
-    spec /= spec[0]
-    f = np.fft.rfftfreq(len(lsf), 1.0 / oversample)
-    corr = np.sinc(f / oversample)  # the finite difference's transfer function
-    return f, spec / np.maximum(corr, 1e-6)
-
-
-def _at(f: np.ndarray, mtf: np.ndarray, f0: float) -> float:
-    return float(np.interp(f0, f, mtf))
-
-
 def main_imager_study(m: Models, trajectory: Trajectory, truth: Truth, out: Path,
                       spp: int = 64, size_px: int = 192) -> dict:
     """Render the main imager's worst exposure (open loop) as a patch of the scene and of a
@@ -200,10 +168,10 @@ def main_imager_study(m: Models, trajectory: Trajectory, truth: Truth, out: Path
         motion = motions[name] = motion_mtf(truth.residual_px(traj)[sel], f_static[:, None])
         f, mtf = curves[name]
         key = name.split()[0]
-        result[f"edge_mtf_nyquist_{key}"] = _at(f, mtf, NYQUIST)
-        result[f"predicted_mtf_nyquist_{key}"] = _at(f_static, mtf_static * motion, NYQUIST)
-        result[f"motion_mtf_nyquist_{key}"] = _at(f_static, motion, NYQUIST)
-    result["edge_mtf_nyquist_static"] = _at(f_static, mtf_static, NYQUIST)
+        result[f"edge_mtf_nyquist_{key}"] = value_at(f, mtf, NYQUIST)
+        result[f"predicted_mtf_nyquist_{key}"] = value_at(f_static, mtf_static * motion, NYQUIST)
+        result[f"motion_mtf_nyquist_{key}"] = value_at(f_static, motion, NYQUIST)
+    result["edge_mtf_nyquist_static"] = value_at(f_static, mtf_static, NYQUIST)
     result["optics_mtf_nyquist"] = float(m.optics.mtf(NYQUIST))
     result.update(figures)
 

@@ -461,10 +461,22 @@ def product_study(m: Models, res, out: Path, fresh: bool = False) -> dict:
         "scene_build_s": t_built - t_start, "render_s": render_s,
         "rays_per_s": float(rays / max(render_s, 1e-9)),
         "ground_s": t_ground - t_rendered, "quality_s": t_quality - t_ground,
+        "record": _record_error(record, perfect),
         "geometry": geometry, "quality": quality,
         "restoration": _restoration_gain(quality),
         "files": [str(f) for f in files],
     }
+
+
+def _record_error(record, perfect) -> dict:
+    """The record's own error at the main imager: its jitter samples against the perfect
+    record's (the camera model's exposure means) at the same times, about the mean (the
+    constant is ground control's), px."""
+    ok = record.valid & perfect.valid
+    e = record.motion_px[ok] - perfect.motion_px[ok]
+    e = e - e.mean(axis=0)
+    return {"rms_px": _floats(np.sqrt(np.mean(e**2, axis=0))), "samples": int(ok.sum()),
+            "rate_hz": float(ok.sum() / max(np.ptp(record.t_s[ok]), 1e-9))}
 
 
 def _corrected(image: np.ndarray, offsets: np.ndarray, kernels: list, runs: np.ndarray,

@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.imcsim-installed
 
-.PHONY: setup demo test lint bench bench-table2 bench-optical bench-loop bench-sweep bench-flight bench-texture-map check-scenarios clean
+.PHONY: setup demo test lint bench bench-table2 bench-optical bench-loop bench-sweep bench-flight bench-texture-map bench-product bench-strip check-scenarios clean
 
 setup: $(STAMP)
 	@sh scripts/ensure-llvm.sh
@@ -55,6 +55,15 @@ bench-flight: setup
 # the seed paper's texture-robustness map: an 8 x 8 block map of a rendered urban scene
 bench-texture-map: setup
 	$(BIN)/python benchmarks/bench_texture_map.py
+
+# the main imager's product: ground correction with and without a stage, restoration, the
+# bundled scenarios' NIIRS (~15 min on 2 cores)
+bench-product: setup
+	$(BIN)/python benchmarks/bench_product.py
+
+# the strip renderer: rays/s on 512^2 and 1024^2 meshes, a 2,048^2 product's time and memory
+bench-strip: setup
+	$(BIN)/python benchmarks/bench_strip.py
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache .ruff_cache *.egg-info

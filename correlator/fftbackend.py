@@ -26,18 +26,36 @@ from __future__ import annotations
 
 import os
 import platform
+import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 import scipy.fft as sfft
 
-try:  # optional: the fast backend
-    import pyfftw
-except ImportError:  # pragma: no cover - exercised where pyfftw is missing
-    pyfftw = None
+
+def _import_pyfftw() -> ModuleType | None:
+    """pyfftw, or None where it is not installed. Its package imports its Dask interface
+    whenever Dask is installed (a second of Dask, pandas and xarray this backend never uses);
+    unless Dask's FFT module is already loaded, that interface is skipped here (``import
+    pyfftw.interfaces.dask_fft`` still loads it on purpose)."""
+    block = "dask.array.fft" not in sys.modules
+    if block:
+        sys.modules["dask.array.fft"] = None  # type: ignore[assignment]  # -> ImportError
+    try:
+        import pyfftw as module
+    except ImportError:  # pragma: no cover - exercised where pyfftw is missing
+        return None
+    finally:
+        if block and sys.modules.get("dask.array.fft", 0) is None:
+            del sys.modules["dask.array.fft"]
+    return module
+
+
+pyfftw = _import_pyfftw()  # optional: the fast backend
 
 BACKENDS = ("fftw", "pocketfft")
 #: blocks per FFTW plan execution (a stack is transformed in batches of this many)

@@ -143,17 +143,33 @@ def fig_motion(run_dir: Path, s: dict) -> Path:
     return save(fig, Path(run_dir) / "fig_motion.png")
 
 
+def periodogram(x: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
+    """(f, one-sided power spectral density) of the columns of x (N, ...): a linear trend
+    removed, a periodic Hann window; ``scipy.signal.periodogram(x, fs, window="hann",
+    detrend="linear", axis=0)`` to rounding, without importing scipy.signal (a second)."""
+    x = np.asarray(x, dtype=np.float64)
+    n = x.shape[0]
+    a = np.ones((n, 2))
+    a[:, 0] = np.arange(1, n + 1) / n
+    flat = x.reshape(n, -1)
+    coef = np.linalg.lstsq(a, flat, rcond=None)[0]
+    win = 0.5 - 0.5 * np.cos(2.0 * np.pi * np.arange(n) / n)
+    spec = np.fft.rfft((flat - a @ coef) * win[:, None], axis=0)
+    p = (spec.real ** 2 + spec.imag ** 2) / (fs * np.sum(win * win))
+    p[1:-1 if n % 2 == 0 else None] *= 2.0
+    return np.fft.rfftfreq(n, 1.0 / fs), p.reshape(p.shape[:1] + x.shape[1:])
+
+
 def fig_spectrum(run_dir: Path, s: dict) -> Path:
     """Amplitude spectra of the open- and closed-loop motion, and their ratio beside the loop
     model's rejection |S(f)|."""
     from matplotlib.ticker import NullFormatter
-    from scipy.signal import periodogram
 
     plt = _plt()
     t, mo, st = s["t_s"], s["motion_px"], s["stage_px"]
     fs = 1.0 / (t[1] - t[0])
-    f, p_open = periodogram(mo, fs, window="hann", axis=0, detrend="linear")
-    _, p_closed = periodogram(mo - st, fs, window="hann", axis=0, detrend="linear")
+    f, p_open = periodogram(mo, fs)
+    _, p_closed = periodogram(mo - st, fs)
     po, pc = p_open.sum(axis=1), p_closed.sum(axis=1)
     keep = f > 0
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4), dpi=110)

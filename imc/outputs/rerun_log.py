@@ -78,10 +78,10 @@ def blueprint(n_blocks: int, has_render: bool):
         rrb.TimePanel(state="expanded"), collapse_panels=False)
 
 
-def _gray_u8(imgs: np.ndarray) -> np.ndarray:
-    """Images (N, H, W) as 8-bit grey, each stretched between its 0.5 and 99.5 percentiles."""
-    lo, hi = np.percentile(imgs, [0.5, 99.5], axis=(1, 2))[:, :, None, None]
-    return np.clip((imgs - lo) / np.maximum(hi - lo, 1e-12) * 255.0, 0, 255).astype(np.uint8)
+def _gray_u8(img: np.ndarray) -> np.ndarray:
+    """An image as 8-bit grey, stretched between its 0.5 and 99.5 percentiles."""
+    lo, hi = np.percentile(img, [0.5, 99.5])
+    return np.clip((img - lo) / max(hi - lo, 1e-12) * 255.0, 0, 255).astype(np.uint8)
 
 
 def _send_images(rec, rr, path: str, times: np.ndarray, imgs: np.ndarray) -> None:
@@ -101,7 +101,8 @@ def _log_tracker(rec, rr, m: Models, res: LoopResult, truth: Truth,
         np.asarray(m.corners, float)[None], len(m.frame_t_s), axis=0)
     n_t, n_b = len(m.frame_t_s), corners.shape[1]
     if frames is not None:
-        _send_images(rec, rr, "tracker/frame", m.frame_t_s, _gray_u8(np.asarray(frames[:n_t])))
+        _send_images(rec, rr, "tracker/frame", m.frame_t_s,
+                     np.stack([_gray_u8(f) for f in frames[:n_t]]))
     # the blocks: sizes and labels once, centres and colours (valid / invalid) per frame
     half = np.full((n_b, 2), b, np.float32) / 2.0
     rec.log("tracker/frame/blocks", rr.Boxes2D.from_fields(

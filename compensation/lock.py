@@ -24,7 +24,6 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 from compensation.controllers import polymul
 
@@ -106,6 +105,8 @@ def analytic_lock_time(model, band: float = 0.02, max_s: float = 600.0) -> Analy
              else int(np.ceil(tau / period * np.log(1e3 / band))))
     n_max = max(1, int(np.ceil(max_s / period)))
     horizon = min(n_max, len(num) + len(den) + decay + 16)
+    from scipy.signal import lfilter  # a second of scipy.signal: only when asked
+
     r = lfilter(num, den, np.ones(horizon))
     final = float(np.sum(num) / np.sum(den)) if abs(np.sum(den)) > 0 else float("nan")
     outside = np.flatnonzero(np.abs(r - final) > band)

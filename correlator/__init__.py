@@ -1,14 +1,37 @@
-"""Image-motion measurement: block correlation (JTC, cross, phase), sub-pixel, tracking."""
+"""Image-motion measurement: block correlation (JTC, cross, phase), sub-pixel, tracking.
 
-from correlator.core import (
-    METHODS,
-    SUBPIXEL,
-    Correlator,
-    CorrelatorOptions,
-    ShiftResult,
-    measure_shift,
-)
-from correlator.tracker import BlockTracker, block_grid
+The names below are loaded on first use (PEP 562): importing a light submodule
+(:mod:`correlator.optical`, :mod:`correlator.timing`) does not import the FFT back-end,
+pyfftw or the compiled kernels that :mod:`correlator.core` needs.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from correlator.core import (
+        METHODS,
+        SUBPIXEL,
+        Correlator,
+        CorrelatorOptions,
+        ShiftResult,
+        measure_shift,
+    )
+    from correlator.tracker import BlockTracker, block_grid
+
+#: each public name and the submodule that defines it
+_LAZY = {
+    "METHODS": "correlator.core",
+    "SUBPIXEL": "correlator.core",
+    "Correlator": "correlator.core",
+    "CorrelatorOptions": "correlator.core",
+    "ShiftResult": "correlator.core",
+    "measure_shift": "correlator.core",
+    "BlockTracker": "correlator.tracker",
+    "block_grid": "correlator.tracker",
+}
 
 __all__ = [
     "METHODS",
@@ -20,3 +43,17 @@ __all__ = [
     "block_grid",
     "measure_shift",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    """A public name, imported from its submodule on first use."""
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'correlator' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -1,9 +1,10 @@
 """FFT backend of the correlator: FFTW through pyfftw, or scipy's pocketfft.
 
-The backend is chosen once, at import: FFTW (``pyfftw``) when it is installed, else pocketfft
-(``scipy.fft``). ``IMC_FFT=pocketfft`` (or ``fftw``) in the environment overrides the choice,
-and :func:`use` switches it for a block of code (tests, benchmarks). Both compute the same
-transforms (float32 in, complex64 out, unnormalised forward, 1/n inverse, as ``scipy.fft``).
+The backend is chosen once, at first use: FFTW (``pyfftw``) when it is installed, else
+pocketfft (``scipy.fft``); pyfftw is imported then, not with this module. ``IMC_FFT=pocketfft``
+(or ``fftw``) in the environment overrides the choice, and :func:`use` switches it for a block
+of code (tests, benchmarks). Both compute the same transforms (float32 in, complex64 out,
+unnormalised forward, 1/n inverse, as ``scipy.fft``).
 
 FFTW plans are made once per (transform, batch, shape) and per thread (a plan object carries
 its arrays, so threads do not share one), with ``FFTW_MEASURE``; the wisdom FFTW gathers makes
@@ -26,18 +27,44 @@ from __future__ import annotations
 
 import os
 import platform
+import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 import scipy.fft as sfft
 
-try:  # optional: the fast backend
-    import pyfftw
-except ImportError:  # pragma: no cover - exercised where pyfftw is missing
-    pyfftw = None
+
+def _import_pyfftw() -> ModuleType | None:
+    """pyfftw, or None where it is not installed. Its package imports its Dask interface
+    whenever Dask is installed (a second of Dask, pandas and xarray this backend never uses);
+    unless Dask's FFT module is already loaded, that interface is skipped here (``import
+    pyfftw.interfaces.dask_fft`` still loads it on purpose)."""
+    block = "dask.array.fft" not in sys.modules
+    if block:
+        sys.modules["dask.array.fft"] = None  # type: ignore[assignment]  # -> ImportError
+    try:
+        import pyfftw as module
+    except ImportError:  # pragma: no cover - exercised where pyfftw is missing
+        return None
+    finally:
+        if block and sys.modules.get("dask.array.fft", 0) is None:
+            del sys.modules["dask.array.fft"]
+    return module
+
+
+_pyfftw: dict[str, ModuleType | None] = {}
+
+
+def _fftw() -> ModuleType | None:
+    """pyfftw (the optional fast backend), imported on first use; None where it is missing."""
+    if "module" not in _pyfftw:
+        _pyfftw["module"] = _import_pyfftw()
+    return _pyfftw["module"]
+
 
 BACKENDS = ("fftw", "pocketfft")
 #: blocks per FFTW plan execution (a stack is transformed in batches of this many)
@@ -46,7 +73,7 @@ BATCH = 8
 
 def available() -> tuple[str, ...]:
     """Backends usable in this environment, fastest first."""
-    return BACKENDS if pyfftw is not None else ("pocketfft",)
+    return BACKENDS if _fftw() is not None else ("pocketfft",)
 
 
 def _initial() -> str:
@@ -58,7 +85,7 @@ def _initial() -> str:
     return available()[0]
 
 
-_state = {"backend": _initial()}
+_state: dict[str, str] = {}
 _plans: dict[tuple, object] = {}
 _plan_lock = threading.Lock()
 _wisdom = {"loaded": False}
@@ -66,6 +93,8 @@ _wisdom = {"loaded": False}
 
 def backend() -> str:
     """The backend in use: 'fftw' or 'pocketfft'."""
+    if "backend" not in _state:
+        _state["backend"] = _initial()
     return _state["backend"]
 
 
@@ -89,6 +118,7 @@ def use(name: str) -> Iterator[None]:
 
 def empty(shape: tuple[int, ...], dtype=np.float32) -> np.ndarray:
     """An uninitialised array aligned for FFTW's SIMD codelets (plain numpy for pocketfft)."""
+    pyfftw = _fftw()
     if pyfftw is not None:
         return pyfftw.empty_aligned(shape, dtype=dtype)
     return np.empty(shape, dtype=dtype)
@@ -100,7 +130,7 @@ def wisdom_path() -> Path:
     if env:
         return Path(env)
     base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-    ver = getattr(pyfftw, "__version__", "0")
+    ver = getattr(_fftw(), "__version__", "0")
     return base / "imcsim" / f"fftw-wisdom-{ver}-{platform.machine()}.npz"
 
 
@@ -108,7 +138,7 @@ def _import_wisdom_file() -> None:
     """Merge the wisdom file into this process's wisdom (a missing or damaged file: none)."""
     try:
         with np.load(wisdom_path()) as f:
-            pyfftw.import_wisdom(tuple(f[k].tobytes() for k in ("double", "single", "long")))
+            _fftw().import_wisdom(tuple(f[k].tobytes() for k in ("double", "single", "long")))
     except (OSError, ValueError, KeyError, EOFError):
         pass
 
@@ -127,7 +157,7 @@ def _save_wisdom() -> None:
     read-only cache only costs the cross-process bit identity)."""
     path = wisdom_path()
     _import_wisdom_file()  # another process's newer wisdom
-    d, s, lng = pyfftw.export_wisdom()
+    d, s, lng = _fftw().export_wisdom()
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
@@ -145,6 +175,7 @@ def _plan(kind: str, n: int, h: int, w: int):
     plan = _plans.get(key)
     if plan is None:
         with _plan_lock:  # FFTW's planner is not thread-safe
+            pyfftw = _fftw()
             _load_wisdom()
             known = pyfftw.export_wisdom()
             real = pyfftw.empty_aligned((n, h, w), dtype=np.float32)
@@ -163,7 +194,7 @@ def _plan(kind: str, n: int, h: int, w: int):
 def _run(plan, src: np.ndarray, dst: np.ndarray) -> None:
     """Execute ``plan`` on src -> dst: in place of the plan's arrays when both are aligned
     and contiguous (no copy, no scaling), else through pyfftw's checked call (copies)."""
-    al = pyfftw.simd_alignment
+    al = _fftw().simd_alignment
     if (src.flags.c_contiguous and dst.flags.c_contiguous and src.ctypes.data % al == 0
             and dst.ctypes.data % al == 0):
         plan.update_arrays(src, dst)
@@ -187,7 +218,7 @@ def rfft2(a: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         out[...] = sfft.rfft2(a, workers=1)
         return out
     if out is None:
-        out = pyfftw.empty_aligned((n, h, w // 2 + 1), dtype=np.complex64)
+        out = _fftw().empty_aligned((n, h, w // 2 + 1), dtype=np.complex64)
     for i in range(0, n, BATCH):
         j = min(i + BATCH, n)
         _run(_plan("r2c", j - i, h, w), a[i:j], out[i:j])
@@ -206,7 +237,7 @@ def irfft2(x: np.ndarray, s: tuple[int, int], normalise: bool = True) -> np.ndar
         return sfft.irfft2(x, s=s, workers=1, norm="backward" if normalise else "forward")
     if x.shape[1:] != (h, w // 2 + 1):
         raise ValueError(f"spectra of shape {x.shape[1:]} do not match the output size {s}")
-    out = pyfftw.empty_aligned((n, h, w), dtype=np.float32)
+    out = _fftw().empty_aligned((n, h, w), dtype=np.float32)
     for i in range(0, n, BATCH):
         j = min(i + BATCH, n)
         _run(_plan("c2r", j - i, h, w), x[i:j], out[i:j])

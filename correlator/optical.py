@@ -52,7 +52,6 @@ import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.fft as sfft
 
 from correlator import peaks, spectral
 
@@ -201,6 +200,8 @@ class OpticalJtc:
             n_rows, n_cols = mo.jps_sensor.rows, mo.jps_sensor.cols
             self.step = mo.output_step_px
         else:
+            import scipy.fft as sfft  # lazily: imc.scenario imports this module
+
             period = float(sfft.next_fast_len(int(np.ceil(need))))
             n_rows = n_cols = int(period)
             self.step = 1.0
@@ -352,6 +353,8 @@ class _Czt:
     X_k = sum_j x_j exp(-2 pi i f_k j) for uniformly spaced f (Bluestein's algorithm)."""
 
     def __init__(self, n: int, f: np.ndarray):
+        import scipy.fft as sfft  # lazily: imc.scenario imports this module
+
         m = len(f)
         f0, df = float(f[0]), float(f[1] - f[0]) if m > 1 else 1.0
         self.n, self.m = n, m
@@ -369,6 +372,8 @@ class _Czt:
         self.kern_f = sfft.fft(buf).astype(np.complex64)
 
     def __call__(self, x: np.ndarray, axis: int = -1) -> np.ndarray:
+        import scipy.fft as sfft
+
         x = np.moveaxis(x, axis, -1)
         y = sfft.fft(x * self.pre, self.nfft, axis=-1, workers=-1)
         y = sfft.ifft(y * self.kern_f, axis=-1, workers=-1)[..., : self.m] * self.post

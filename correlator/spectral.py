@@ -27,7 +27,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.fft as sfft
 
 
 def tukey_1d(n: int, taper_px: float, margin_px: float | np.ndarray = 0.0,
@@ -64,6 +63,8 @@ class Grid:
     def of(cls, h: int, w: int, rows_idx: np.ndarray | None = None,
            cols_n: int | None = None) -> Grid:
         """Grid of the full (h, w) spectrum, or of the sub-block ``[rows_idx, :cols_n]``."""
+        import scipy.fft as sfft  # lazily: imc.scenario imports this module (via optical)
+
         ay = 2.0 * np.pi * sfft.fftfreq(h)
         ax = 2.0 * np.pi * sfft.rfftfreq(w)
         alpha = np.full(ax.shape, 2.0)

@@ -85,8 +85,18 @@ def blueprint(n_blocks: int, has_render: bool, has_product: bool = False):
 
 
 def _gray_u8(img: np.ndarray) -> np.ndarray:
+    """An image as 8-bit grey, stretched between its 0.5 and 99.5 percentiles."""
     lo, hi = np.percentile(img, [0.5, 99.5])
     return np.clip((img - lo) / max(hi - lo, 1e-12) * 255.0, 0, 255).astype(np.uint8)
+
+
+def _send_images(rec, rr, path: str, times: np.ndarray, imgs: np.ndarray) -> None:
+    """8-bit grey images (N, H, W) at ``times`` as one column (their format logged once)."""
+    n, h, w = imgs.shape
+    rec.log(path, rr.Image.from_fields(format=rr.components.ImageFormat(
+        width=w, height=h, color_model="L", channel_datatype="U8")), static=True)
+    rec.send_columns(path, indexes=[rr.TimeColumn("time", duration=times)],
+                     columns=rr.Image.columns(buffer=imgs.reshape(n, -1)))
 
 
 def _log_tracker(rec, rr, m: Models, res: LoopResult, truth: Truth,
@@ -95,17 +105,22 @@ def _log_tracker(rec, rr, m: Models, res: LoopResult, truth: Truth,
     b = float(m.scenario.correlator.block_px)
     corners = ref_corners if ref_corners is not None else np.repeat(
         np.asarray(m.corners, float)[None], len(m.frame_t_s), axis=0)
-    n_b = corners.shape[1]
-    for k, t in enumerate(m.frame_t_s):
-        rec.set_time("time", duration=float(t))
-        if frames is not None:
-            rec.log("tracker/frame", rr.Image(_gray_u8(frames[k])))
-        colors = np.where(r.valid[k][:, None], [[40, 220, 80]], [[230, 40, 40]])
-        rec.log("tracker/frame/blocks",
-                rr.Boxes2D(mins=corners[k][:, ::-1].astype(np.float32) - 0.5,
-                           sizes=np.full((n_b, 2), b, np.float32),
-                           labels=[f"block {i}" for i in range(n_b)],
-                           colors=colors.astype(np.uint8)))
+    n_t, n_b = len(m.frame_t_s), corners.shape[1]
+    if frames is not None:
+        _send_images(rec, rr, "tracker/frame", m.frame_t_s,
+                     np.stack([_gray_u8(f) for f in frames[:n_t]]))
+    # the blocks: sizes and labels once, centres and colours (valid / invalid) per frame
+    half = np.full((n_b, 2), b, np.float32) / 2.0
+    rec.log("tracker/frame/blocks", rr.Boxes2D.from_fields(
+        half_sizes=half, labels=[f"block {i}" for i in range(n_b)]), static=True)
+    mins = corners[:n_t, :, ::-1].astype(np.float32) - 0.5
+    colors = np.where(r.valid[:n_t, :, None], [[40, 220, 80]], [[230, 40, 40]])
+    rec.send_columns("tracker/frame/blocks",
+                     indexes=[rr.TimeColumn("time", duration=m.frame_t_s)],
+                     columns=rr.Boxes2D.columns(
+                         centers=(mins + half).reshape(-1, 2),
+                         colors=colors.astype(np.uint8).reshape(-1, 3)).partition(
+                             np.full(n_t, n_b)))
     shift = np.where(r.valid[..., None], r.shift_px, np.nan)
     mag = max(1.0, round(0.25 * b / max(float(np.nanmax(np.abs(shift))), 1e-6)))
     centres = corners[0] + 0.5 * b
@@ -158,11 +173,11 @@ def _log_imager(rec, rr, out_dir: Path) -> bool:
         with np.load(blur) as z:
             for key in ("open", "closed"):
                 psf, t0 = z[f"{key}_psf"], z[f"{key}_window_start_s"]
-                for k in range(len(psf)):
-                    rec.set_time("time", duration=float(t0[k]))
-                    img = psf[k] / max(float(psf[k].max()), 1e-12)
-                    rec.log(f"main_imager/{key}/psf",
-                            rr.Image((np.sqrt(img) * 255).astype(np.uint8)))
+                if not len(psf):
+                    continue
+                img = psf / np.maximum(psf.max(axis=(1, 2)), 1e-12)[:, None, None]
+                _send_images(rec, rr, f"main_imager/{key}/psf", t0,
+                             (np.sqrt(img) * 255).astype(np.uint8))
     png = out_dir / "main_imager.png"
     if png.exists():
         rec.log("main_imager/rendered", rr.EncodedImage(path=png), static=True)
@@ -192,10 +207,27 @@ def _terrain_mesh(rr, m: Models, n_max: int = 64):
                      vertex_colors=np.repeat(alb.reshape(-1, 1), 3, axis=1))
 
 
-def _footprint(cam, t: float, height_fn) -> np.ndarray:
+def _ground_points(cam, pixel_rc: np.ndarray, t_s: np.ndarray, height_fn,
+                   iterations: int = 8) -> np.ndarray:
+    """ENU points (T, P, 3) seen at pixels (P, 2) at each of the times (T,): the ray-terrain
+    intersection of :meth:`camera.motion.CameraModel.ground_points`, for all times at once."""
+    pose = cam.pose(np.asarray(t_s, dtype=np.float64))
+    d = np.einsum("tij,pj->tpi", pose.enu_from_cam, cam.focal_plane.cam_direction(pixel_rc))
+    c = pose.position_m[:, None, :]
+    h = np.zeros(d.shape[:-1])
+    for _ in range(iterations):
+        s = (h - c[..., 2]) / d[..., 2]
+        p = c + s[..., None] * d
+        h = height_fn(p[..., 0], p[..., 1])
+    s = (h - c[..., 2]) / d[..., 2]
+    return c + s[..., None] * d
+
+
+def _footprint(cam, t_s: np.ndarray, height_fn) -> np.ndarray:
+    """The focal plane's outline on the ground (T, 5, 3) at each of the times (T,)."""
     fp = cam.focal_plane
     c = np.array([[0, 0], [0, fp.cols], [fp.rows, fp.cols], [fp.rows, 0], [0, 0]], float)
-    return cam.ground_points(c - 0.5, t, height_fn)
+    return _ground_points(cam, c - 0.5, t_s, height_fn)
 
 
 def _log_world(rec, rr, m: Models) -> None:
@@ -209,18 +241,23 @@ def _log_world(rec, rr, m: Models) -> None:
                                            labels=[f"orbit, +-{ARC_S:g} s"]), static=True)
     times = np.linspace(0.0, end, min(MAX_POSES, len(m.frame_t_s) + 1))
     pos = cam.pose(times).position_m
-    centre = cam.focal_plane.center_px[None]
-    for k, t in enumerate(times):
-        rec.set_time("time", duration=float(t))
-        g = cam.ground_points(centre, float(t), hfn)[0]
-        rec.log("world/satellite", rr.Points3D([pos[k]], radii=2000.0,
-                                               colors=[(255, 220, 80)], labels=["satellite"]))
-        rec.log("world/line_of_sight", rr.LineStrips3D([[pos[k], g]], colors=[(255, 120, 60)]))
-        rec.log("world/footprint/tracker", rr.LineStrips3D(
-            [_footprint(cam, float(t), hfn)], colors=[(60, 230, 120)], labels=["tracker"]))
-        rec.log("world/footprint/main_imager", rr.LineStrips3D(
-            [_footprint(m.main_camera, float(t), hfn)], colors=[(80, 160, 255)],
-            labels=["main imager"]))
+    ground = _ground_points(cam, cam.focal_plane.center_px[None], times, hfn)[:, 0]
+    # each path's style once (static), its geometry per time step as one column
+    tcol = rr.TimeColumn("time", duration=times)
+    rec.log("world/satellite", rr.Points3D.from_fields(
+        radii=[2000.0], colors=[(255, 220, 80)], labels=["satellite"]), static=True)
+    rec.send_columns("world/satellite", indexes=[tcol],
+                     columns=rr.Points3D.columns(positions=pos))
+    strips = {"world/line_of_sight": (np.stack([pos, ground], axis=1), (255, 120, 60), None),
+              "world/footprint/tracker": (_footprint(cam, times, hfn), (60, 230, 120),
+                                          "tracker"),
+              "world/footprint/main_imager": (_footprint(m.main_camera, times, hfn),
+                                              (80, 160, 255), "main imager")}
+    for path, (xyz, color, label) in strips.items():
+        rec.log(path, rr.LineStrips3D.from_fields(
+            colors=[color], labels=[label] if label else None), static=True)
+        rec.send_columns(path, indexes=[tcol],
+                         columns=rr.LineStrips3D.columns(strips=list(xyz)))
 
 
 def write_recording(path: Path, m: Models, res: LoopResult, truth: Truth,

@@ -105,9 +105,7 @@ def analytic_lock_time(model, band: float = 0.02, max_s: float = 600.0) -> Analy
              else int(np.ceil(tau / period * np.log(1e3 / band))))
     n_max = max(1, int(np.ceil(max_s / period)))
     horizon = min(n_max, len(num) + len(den) + decay + 16)
-    from scipy.signal import lfilter  # a second of scipy.signal: only when asked
-
-    r = lfilter(num, den, np.ones(horizon))
+    r = _step_response(num, den, horizon)
     final = float(np.sum(num) / np.sum(den)) if abs(np.sum(den)) > 0 else float("nan")
     outside = np.flatnonzero(np.abs(r - final) > band)
     if not outside.size:
@@ -117,6 +115,27 @@ def analytic_lock_time(model, band: float = 0.02, max_s: float = 600.0) -> Analy
     else:
         lock = float((outside[-1] + 1) * period)
     return AnalyticLock(lock, band, final, radius, float(tau), float(tau * np.log(1.0 / band)))
+
+
+def _step_response(num: np.ndarray, den: np.ndarray, n: int) -> np.ndarray:
+    """The first n samples of the unit-step response of num / den (z^-1 polynomials): the
+    difference equation run sample by sample (n is a few thousand at most; scipy.signal's
+    lfilter would cost its second-long import in ``imc validate``)."""
+    b = np.zeros(max(len(num), len(den)))
+    a = np.zeros_like(b)
+    b[: len(num)], a[: len(den)] = num, den
+    b, a = b / den[0], a / den[0]
+    x_hist = np.zeros(len(b))
+    y_hist = np.zeros(len(a))
+    out = np.empty(n)
+    for i in range(n):
+        x_hist = np.roll(x_hist, 1)
+        x_hist[0] = 1.0
+        y = float(b @ x_hist - a[1:] @ y_hist[: len(a) - 1])
+        y_hist = np.roll(y_hist, 1)
+        y_hist[0] = y
+        out[i] = y
+    return out
 
 
 @dataclass(frozen=True)

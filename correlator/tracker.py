@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from correlator.core import Correlator, CorrelatorOptions, ShiftResult
+if TYPE_CHECKING:  # the correlator (numba, FFTW) is imported when a tracker is made
+    from correlator.core import CorrelatorOptions, ShiftResult
 
 
 def block_grid(rows: int, cols: int, block_px: int, n_blocks: int) -> np.ndarray:
@@ -41,6 +44,8 @@ class BlockTracker:
                  options: CorrelatorOptions | None = None):
         self.corners = np.asarray(corners, dtype=int)
         self.block_px = int(block_px)
+        from correlator.core import Correlator, CorrelatorOptions
+
         self.correlator = Correlator(
             extract_blocks(reference_frame, self.corners, self.block_px),
             options or CorrelatorOptions(),
@@ -97,7 +102,7 @@ class BlockTracker:
         res = self.correlator.measure(extract_blocks(frame, safe, self.block_px), rng, index,
                                       predicted=(pred - step) if trusted else None)
         shift = np.where(inside[:, None], res.shift + step, np.nan)
-        return ShiftResult(shift, res.valid & inside, np.where(inside, res.peak, 0.0),
+        return type(res)(shift, res.valid & inside, np.where(inside, res.peak, 0.0),
                            np.where(inside[:, None], res.crlb, np.inf))
 
     def _warped(self, frame, flow, sel, rng, index) -> ShiftResult:
@@ -119,5 +124,5 @@ class BlockTracker:
         lo, hi = int(np.floor(c)), int(np.ceil(c))
         centre = 0.25 * (flow[:, lo, lo] + flow[:, lo, hi] + flow[:, hi, lo] + flow[:, hi, hi])
         shift = np.where(inside[:, None], res.shift + centre, np.nan)
-        return ShiftResult(shift, res.valid & inside, np.where(inside, res.peak, 0.0),
+        return type(res)(shift, res.valid & inside, np.where(inside, res.peak, 0.0),
                            np.where(inside[:, None], res.crlb, np.inf))

@@ -25,7 +25,6 @@ from typing import Literal
 
 import numpy as np
 from geographiclib.geodesic import Geodesic
-from scipy.spatial.transform import Rotation
 
 from orbit.frames import (
     OMEGA_EARTH_RAD_S,
@@ -38,6 +37,23 @@ from orbit.jitter import JitterSeries, JitterTerm, realize_jitter
 from orbit.kepler import EarthOrbit, Orbit
 
 _DT_S = 1e-3  # central-difference step for nominal rates (the pointing rotates < 2 mrad/s)
+
+
+def rotation_matrices(rotvec: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of rotation vectors (..., 3) (axis times angle, rad), by
+    Rodrigues' formula R = I + a K + b K^2 with a = sin t / t and b = (1 - cos t) / t^2 (their
+    Taylor series below t = 1e-4 rad, exact to double precision there)."""
+    v = np.asarray(rotvec, dtype=np.float64)
+    t2 = np.sum(v * v, axis=-1)[..., None, None]
+    t = np.sqrt(t2)
+    small = t < 1e-4
+    ts = np.where(small, 1.0, t)
+    a = np.where(small, 1.0 - t2 / 6.0, np.sin(ts) / ts)
+    b = np.where(small, 0.5 - t2 / 24.0, (1.0 - np.cos(ts)) / (ts * ts))
+    k = np.zeros(v.shape[:-1] + (3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    k[..., 1, 0], k[..., 2, 0], k[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return np.eye(3) + a * k + b * (k @ k)
 
 
 def unit_vector(v: np.ndarray) -> np.ndarray:
@@ -155,8 +171,7 @@ class Attitude:
         return np.stack([x, np.cross(z, x), z], axis=-1)
 
     def _jitter_matrix(self, t: np.ndarray) -> np.ndarray:
-        rv = self.jitter.rotvec_rad(t)
-        return Rotation.from_rotvec(rv.reshape(-1, 3)).as_matrix().reshape(rv.shape[:-1] + (3, 3))
+        return rotation_matrices(self.jitter.rotvec_rad(t))
 
     def eci_from_body(self, orbit: EarthOrbit, t_s, nominal: bool = False) -> np.ndarray:
         """Rotations (..., 3, 3): nominal pointing with jitter applied in the body frame

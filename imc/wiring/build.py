@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -17,7 +18,6 @@ from camera.motion import CameraModel
 from camera.optics import Optics
 from camera.sensor import Radiometry, SensorModel
 from compensation.registry import block_class, make_block
-from correlator.core import CorrelatorOptions
 from correlator.optical import OpticalJtc
 from correlator.timing import PipelineTiming, Schedule
 from correlator.tracker import BlockTracker, block_grid
@@ -35,6 +35,9 @@ from orbit.tle import TleOrbit
 from scene.classes import CloudLayer, cloud_cell_m, cloud_layer, scene_class
 from scene.geotiff import GeoTiffError, terrain_from_geotiff
 from scene.terrain import Terrain, flat_terrain
+
+if TYPE_CHECKING:  # the correlator's core (numba, FFTW) is imported when options are made
+    from correlator.core import CorrelatorOptions
 
 
 @dataclass(frozen=True)
@@ -315,6 +318,8 @@ def build_models(sc: Scenario, light: bool = False) -> Models:
 def correlator_options(sc: Scenario) -> CorrelatorOptions:
     """The correlator's options; an optical model that cannot hold the blocks is a
     ScenarioError naming the field."""
+    from correlator.core import CorrelatorOptions
+
     c = sc.correlator
     try:
         opts = CorrelatorOptions(

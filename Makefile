@@ -19,6 +19,7 @@ demo: setup
 	$(BIN)/imc info
 	$(BIN)/imc run scenarios/quickstart.yaml --out runs/quickstart --save-frames
 	$(BIN)/imc loop scenarios/quickstart.yaml --out runs/quickstart/loop
+	$(BIN)/imc run scenarios/ikonos_tdi_jitter.yaml --out runs/ikonos_tdi_jitter
 
 test: setup
 	RERUN_TELEMETRY_ENABLED=0 $(BIN)/python -m pytest -q

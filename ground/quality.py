@@ -261,7 +261,8 @@ def image_quality(product: np.ndarray, static: np.ndarray | None = None, *,
         level = np.mean([e.contrast for e in edges]) if edges else float(np.mean(flat))
         snr = float(level / sigma) if sigma > 0 else float("inf")
     niirs = None
-    if along is not None and across is not None and snr is not None and gsd_m is not None:
+    if (along is not None and across is not None and snr is not None and gsd_m is not None
+            and along.rer > 0 and across.rer > 0):  # an edge smeared past its ROI: no NIIRS
         niirs = niirs_giqe5(along.rer, across.rer, gsd_m, snr, elevation_rad)
     psnr = ssim = None
     if static is not None:

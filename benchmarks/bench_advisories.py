@@ -24,22 +24,13 @@ sys.path.insert(0, str(ROOT))
 from imc.io import write_json  # noqa: E402
 from imc.pipeline import run_scenario  # noqa: E402
 from imc.scenario import ScenarioError, parse_scenario  # noqa: E402
+from imc.yamlload import with_changes  # noqa: E402
 
 VARIANTS = {
     "as bundled": {},
     "device on": {"correlator.timing.enabled": True},
     "imager from 0.1 s": {"camera.main_imager.start_s": 0.1},
 }
-
-
-def _apply(data: dict, changes: dict) -> dict:
-    for dotted, value in changes.items():
-        node = data
-        *parents, leaf = dotted.split(".")
-        for key in parents:
-            node = node.setdefault(key, {})
-        node[leaf] = value
-    return data
 
 
 def main() -> None:
@@ -50,7 +41,7 @@ def main() -> None:
     rows, results = [], []
     for f in sorted((ROOT / "scenarios").glob("*.yaml")):
         for label, changes in VARIANTS.items():
-            data = _apply(yaml.safe_load(f.read_text()), {
+            data = with_changes(yaml.safe_load(f.read_text()), {
                 "plant.fidelity": "analytic", "metrics.blur_images": False,
                 "product.enabled": False, **changes})
             data.pop("expect", None)

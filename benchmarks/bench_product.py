@@ -26,6 +26,7 @@ sys.path.insert(0, str(ROOT))
 from imc.io import write_json  # noqa: E402
 from imc.pipeline import run_scenario  # noqa: E402
 from imc.scenario import parse_scenario  # noqa: E402
+from imc.yamlload import with_changes  # noqa: E402
 
 SCENARIOS = ROOT / "scenarios"
 #: the bundled scenarios whose open-loop NIIRS loss is printed, with a product of this size
@@ -33,14 +34,7 @@ SMALL_PRODUCT = {"enabled": True, "lines": 256, "cols": 256, "samples": 8}
 
 
 def _scenario(name: str, **changes) -> dict:
-    data = yaml.safe_load((SCENARIOS / f"{name}.yaml").read_text())
-    for dotted, value in changes.items():
-        node = data
-        *parents, leaf = dotted.split(".")
-        for key in parents:
-            node = node.setdefault(key, {})
-        node[leaf] = value
-    return data
+    return with_changes(yaml.safe_load((SCENARIOS / f"{name}.yaml").read_text()), changes)
 
 
 def _run(data: dict, out: Path, label: str) -> dict:

@@ -37,6 +37,7 @@ import numpy as np
 
 from compensation.controllers import FeedbackController, KalmanPredictor, polymul
 from compensation.loop import Trajectory
+from compensation.metrics import json_dict
 
 
 def _piecewise_fourier(t: np.ndarray, s: np.ndarray, omega: np.ndarray, interp: str,
@@ -118,8 +119,7 @@ class Margins:
     peak_hz: float
 
     def to_dict(self) -> dict:
-        return {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
-                for k, v in dataclasses.asdict(self).items()}
+        return json_dict(self)
 
 
 @dataclass(frozen=True)

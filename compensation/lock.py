@@ -21,11 +21,12 @@ Two definitions, one per source:
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
 from compensation.controllers import polymul
+from compensation.metrics import json_dict
 
 
 @dataclass(frozen=True)
@@ -52,8 +53,7 @@ class AnalyticLock:
     pole_lock_s: float
 
     def to_dict(self) -> dict:
-        return {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
-                for k, v in asdict(self).items()}
+        return json_dict(self)
 
 
 def sensitivity_polys(model) -> tuple[np.ndarray, np.ndarray]:
@@ -158,8 +158,7 @@ class RunLock:
     floor_px: float
 
     def to_dict(self) -> dict:
-        return {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
-                for k, v in asdict(self).items()}
+        return json_dict(self)
 
 
 def running_rms(t_s: np.ndarray, r_px: np.ndarray, window_s: float) -> np.ndarray:

@@ -58,3 +58,9 @@ def residual_metrics(t_s: np.ndarray, r_px: np.ndarray, window_s: float) -> Resi
         mtf_nyquist_worst=tuple(float(v) for v in mtf.min(axis=0)),
         window_s=float(per * dt),
     )
+
+
+def json_dict(figures) -> dict:
+    """A dataclass of figures as a dict for strict JSON: non-finite floats become None."""
+    return {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
+            for k, v in asdict(figures).items()}

@@ -86,6 +86,21 @@ class MotionRecord:
         return tu, mu, su
 
 
+def check_series(t_s, values_px, t_name: str = "t_s",
+                 values_name: str = "motion_px") -> tuple[np.ndarray, np.ndarray]:
+    """(t (n,), values (n, 2)) float64 of a densely sampled series, or a ValueError naming the
+    argument: at least 2 samples, finite, times strictly increasing."""
+    t = np.asarray(t_s, dtype=np.float64)
+    v = np.asarray(values_px, dtype=np.float64)
+    if t.ndim != 1 or t.size < 2 or v.shape != (t.size, 2):
+        raise ValueError(f"{t_name} (n >= 2,) and {values_name} (n, 2) must match, got "
+                         f"{t.shape} and {v.shape}")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(v)) and np.all(np.diff(t) > 0)):
+        raise ValueError(f"{t_name} must be finite and strictly increasing, {values_name} "
+                         "finite")
+    return t, v
+
+
 def _check_lines(t_line_s, integration_s: float) -> np.ndarray:
     t = np.asarray(t_line_s, dtype=np.float64)
     if t.ndim != 1 or t.size == 0 or not np.all(np.isfinite(t)):
@@ -169,13 +184,7 @@ def perfect_record(record: MotionRecord, truth_t_s, truth_px,
     sample times, no sigma. ``keep_gaps``: keep the record's invalid samples invalid (only
     noise, bias and delay removed) or make every sample valid. Samples outside the truth's span
     are invalid."""
-    tt = np.asarray(truth_t_s, dtype=np.float64)
-    tp = np.asarray(truth_px, dtype=np.float64)
-    if tt.ndim != 1 or tt.size < 2 or tp.shape != (tt.size, 2):
-        raise ValueError(f"truth_t_s (n >= 2,) and truth_px (n, 2) must match, got "
-                         f"{tt.shape} and {tp.shape}")
-    if not (np.all(np.isfinite(tt)) and np.all(np.isfinite(tp)) and np.all(np.diff(tt) > 0)):
-        raise ValueError("truth_t_s must be finite and strictly increasing, truth_px finite")
+    tt, tp = check_series(truth_t_s, truth_px, "truth_t_s", "truth_px")
     t = record.t_s
     tf = np.where(np.isfinite(t), t, tt[0] - 1.0)
     inside = (tf >= tt[0]) & (tf <= tt[-1])

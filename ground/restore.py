@@ -51,6 +51,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from ground.record import check_series
+
 #: fine PSF bins (px) and the Lanczos order of the pixel-grid kernel
 PSF_BIN_PX = 1.0 / 32.0
 LANCZOS_A = 3
@@ -119,13 +121,7 @@ def run_psfs(t_s, residual_px, t_line_s, integration_s: float, run_starts, *,
     residual is taken about its own mean (rectification removes that), and the lines of run
     ``i`` (``run_starts[i]`` to ``run_starts[i + 1]``) are pooled into one PSF.
     """
-    t = np.asarray(t_s, dtype=np.float64)
-    r = np.asarray(residual_px, dtype=np.float64)
-    if t.ndim != 1 or t.size < 2 or r.shape != (t.size, 2):
-        raise ValueError(f"t_s (n >= 2,) and residual_px (n, 2) must match, got {t.shape} "
-                         f"and {r.shape}")
-    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(r)) and np.all(np.diff(t) > 0)):
-        raise ValueError("t_s must be finite and strictly increasing, residual_px finite")
+    t, r = check_series(t_s, residual_px, "t_s", "residual_px")
     tl = np.asarray(t_line_s, dtype=np.float64)
     if tl.ndim != 1 or tl.size == 0 or not np.all(np.isfinite(tl)):
         raise ValueError(f"t_line_s must be a non-empty finite 1-D array, got {tl.shape}")

@@ -175,3 +175,16 @@ def load_yaml(text: str):
         raise YamlInputError(short(problem, 120), mark, "YAML syntax error") from None
     except RecursionError:
         raise YamlInputError(f"nesting deeper than {MAX_DEPTH} levels") from None
+
+
+def with_changes(data: dict, changes: dict) -> dict:
+    """``data`` (a scenario mapping, changed in place and returned) with each dotted key of
+    ``changes`` set to its value, creating the sections on the way
+    (``{"camera.tracker.rows": 128}``)."""
+    for dotted, value in changes.items():
+        node = data
+        *parents, leaf = dotted.split(".")
+        for key in parents:
+            node = node.setdefault(key, {})
+        node[leaf] = value
+    return data

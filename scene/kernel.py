@@ -11,12 +11,12 @@ import os
 import sys
 import time
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 
 from scene.classes import CloudLayer
-from scene.pinhole import KEYFRAME_FLOATS
+from scene.pinhole import KEYFRAME_FLOATS, HitCounts
 from scene.terrain import Terrain
 from scene.variant import VariantChoice, choose_variant, prepare_environment
 
@@ -286,7 +286,8 @@ class Renderer:
         return (arr[..., 0] + arr[..., 1] + arr[..., 2]) * np.float32(1.0 / 3.0)
 
 
-class CastResult(NamedTuple):
+@dataclass(frozen=True, eq=False)  # holds an array
+class CastResult(HitCounts):
     """Radiance of a batch of lines of sight and how many of them hit the scene.
 
     ``radiance`` (K, R, C) float32: one value per keyframe, film row and film column (rays
@@ -300,10 +301,6 @@ class CastResult(NamedTuple):
     first_hits: int
     hits: int
 
-    @property
-    def hit_fraction(self) -> float:
-        """Fraction of rays that hit on the first cast (the figure to watch)."""
-        return self.first_hits / max(self.rays, 1)
 
 
 #: horizontal nudge (m) of a ray's start point for the re-cast of a miss (a ray that slipped

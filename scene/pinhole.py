@@ -62,3 +62,17 @@ def rays_from_keyframe(kf: np.ndarray, qx: np.ndarray, qy: np.ndarray):
                   np.full_like(den, pc[2])], axis=-1)
     w = q @ a.T
     return o, w / np.linalg.norm(w, axis=-1, keepdims=True)
+
+
+class HitCounts:
+    """What a ray cast counts, and the figure to watch: ``rays``, ``first_hits`` (hits of the
+    first cast), ``hits`` (after misses were re-cast); a mixin of the cast results."""
+
+    rays: int
+    first_hits: int
+    hits: int
+
+    @property
+    def hit_fraction(self) -> float:
+        """Fraction of rays that hit on the first cast."""
+        return self.first_hits / max(self.rays, 1)

@@ -35,7 +35,7 @@ from camera.linescan import (
 from camera.motion import CameraModel
 from camera.optics import Optics
 from camera.sensor import Radiometry, SensorModel
-from scene.pinhole import ray_keyframes
+from scene.pinhole import HitCounts, ray_keyframes
 
 #: detector columns the line-of-sight truth is evaluated at (spread over the window)
 OFFSET_PROBES = 5
@@ -52,7 +52,7 @@ class Caster(Protocol):
 
 
 @dataclass(frozen=True)
-class StripChunk:
+class StripChunk(HitCounts):
     """Lines ``first_line .. first_line + n - 1`` of a strip.
 
     Attributes
@@ -76,7 +76,7 @@ class StripChunk:
 
 
 @dataclass(frozen=True)
-class StripResult:
+class StripResult(HitCounts):
     """A whole strip: radiance (L, C), line_offset_px (L, 2), offset_field_px (L, P, 2) at
     ``probe_cols`` (P,), the line rate used, and the ray counts (hit_fraction: first cast)."""
 
@@ -89,9 +89,6 @@ class StripResult:
     first_hits: int
     hits: int
 
-    @property
-    def hit_fraction(self) -> float:
-        return self.first_hits / max(self.rays, 1)
 
 
 def line_rate_for(camera: CameraModel, imager: TdiImager, t_s: float, height_fn: HeightFn,
@@ -226,7 +223,7 @@ def render_strip(caster: Caster, camera: CameraModel, imager: TdiImager, t0_s: f
 
 
 @dataclass(frozen=True)
-class FrameResult:
+class FrameResult(HitCounts):
     """A frame exposure: radiance (R, C) (mean over the samples), the true offset (P, 2) at
     ``probe_rc`` (P, 2), and the ray counts."""
 
@@ -237,9 +234,6 @@ class FrameResult:
     first_hits: int
     hits: int
 
-    @property
-    def hit_fraction(self) -> float:
-        return self.first_hits / max(self.rays, 1)
 
 
 def render_frame(caster: Caster, camera: CameraModel, imager: FrameImager, t0_s: float,

@@ -9,6 +9,7 @@ from typer.testing import CliRunner
 
 from imc.cli import app
 from imc.scenario import ScenarioError, load_scenario, parse_scenario
+from imc.yamlload import with_changes
 
 runner = CliRunner()
 
@@ -20,14 +21,7 @@ def _write(tmp_path: Path, text: str) -> Path:
 
 
 def _quickstart_with(**changes) -> dict:
-    data = yaml.safe_load(QUICKSTART.read_text())
-    for dotted, value in changes.items():
-        node = data
-        *parents, leaf = dotted.split(".")
-        for key in parents:
-            node = node.setdefault(key, {})
-        node[leaf] = value
-    return data
+    return with_changes(yaml.safe_load(QUICKSTART.read_text()), changes)
 
 
 def test_quickstart_loads_with_ikonos_values(quickstart):

@@ -42,17 +42,24 @@ def write_quicklook(run_dir: Path) -> Path | None:
         return None
     names = [n for n in SHOWN if f"scene/{n}" in z]
     static = z["scene/static"]
+    h, w = static.shape
+    rows = slice((h - w) // 2, (h + w) // 2) if h > 2 * w else slice(None)  # a long strip:
+    # its middle square
     lo, hi = np.nanpercentile(static, [1, 99])
-    fig = plt.figure(figsize=(2.6 * len(names), 6.0), dpi=100)
-    grid = fig.add_gridspec(2, len(names), height_ratios=[3, 2])
+    side = 2.6  # inches a product
+    aspect = static[rows].shape[0] / w
+    fig = plt.figure(figsize=(side * len(names), side * min(aspect, 2.0) + 2.6), dpi=100)
+    grid = fig.add_gridspec(2, len(names), height_ratios=[side * min(aspect, 2.0), 2.6])
     for i, name in enumerate(names):
         ax = fig.add_subplot(grid[0, i])
-        ax.imshow(z[f"scene/{name}"], cmap="gray", vmin=lo, vmax=hi, interpolation="nearest")
+        ax.imshow(z[f"scene/{name}"][rows], cmap="gray", vmin=lo, vmax=hi,
+                  interpolation="nearest")
         ax.set_title(TITLES.get(name, name), fontsize=8)
         ax.axis("off")
     kinds = [k for k in ("open", "closed") if f"offset/true/{k}" in z]
+    bottom = grid[1, :].subgridspec(1, 2)
     for j, axis in enumerate(("row (along)", "col (across)")):
-        ax = fig.add_subplot(grid[1, j * len(names) // 2:(j + 1) * len(names) // 2])
+        ax = fig.add_subplot(bottom[0, j])
         for k in kinds:
             true, rec = z[f"offset/true/{k}"][:, j], z[f"offset/record/{k}"][:, j]
             ax.plot(true, label=f"{k}: true")

@@ -45,6 +45,10 @@ def main() -> None:
                 "plant.fidelity": "analytic", "metrics.blur_images": False,
                 "product.enabled": False, **changes})
             data.pop("expect", None)
+            if not data.get("compensation", {}).get("enabled", True):
+                rows.append(f"| {f.stem} | {label} | no loop (compensation.enabled: false) "
+                            "| | yes |")
+                continue
             warnings: list[str] = []
             try:
                 m, _ = run_scenario(parse_scenario(data, f.name), out / f"{f.stem}_{label}",

@@ -93,8 +93,9 @@ def summarize(m: Models, res: LoopResult, truth: Truth, parts: LoopParts,
     return out
 
 
-#: an exposure counts as worse with the loop than without when its motion MTF at Nyquist
-#: (either axis) is lower by more than this (ties near 1 are not counted)
+#: an exposure counts as worse with the loop than without when its motion MTF at Nyquist, the
+#: two axes' product, is lower by more than this (ties near 1 are not counted; an axis the
+#: jitter leaves alone may lose 0.001-0.002 to the tracker's noise while the other gains)
 WORSE_MTF_TOLERANCE = 1e-3
 #: the most worse exposures listed by start time in metrics.json
 WORSE_LISTED = 20
@@ -102,8 +103,8 @@ WORSE_LISTED = 20
 
 def exposure_comparison(truth: Truth, trajectory) -> dict:
     """Per main-imager exposure (integration window), the motion MTF at Nyquist (row, col)
-    without and with the loop; the exposures the loop made worse, counted and listed (start
-    time s, MTF open, MTF closed)."""
+    without and with the loop; the exposures the loop made worse (their two axes' product
+    lower), counted and listed (start time s, MTF open, MTF closed)."""
     wins, idx = np.unique(truth.window, return_inverse=True)
     order = np.argsort(idx, kind="stable")
     counts = np.bincount(idx)
@@ -115,13 +116,14 @@ def exposure_comparison(truth: Truth, trajectory) -> dict:
     for name, traj in (("open", None), ("closed", trajectory)):
         r = truth.residual_px(traj)[order].reshape(shape)
         mtf[name] = np.stack([motion_mtf(r, axis=0), motion_mtf(r, axis=1)], axis=-1)
-    worse = np.any(mtf["closed"] < mtf["open"] - WORSE_MTF_TOLERANCE, axis=1)
+    both = {k: v.prod(axis=1) for k, v in mtf.items()}
+    worse = both["closed"] < both["open"] - WORSE_MTF_TOLERANCE
     listed = [{"start_s": float(t[i, 0]), "mtf_nyquist_open": _floats(mtf["open"][i]),
                "mtf_nyquist_closed": _floats(mtf["closed"][i])}
               for i in np.flatnonzero(worse)[:WORSE_LISTED]]
     return {"n": int(len(wins)), "worse_than_open": int(worse.sum()),
             "tolerance": WORSE_MTF_TOLERANCE,
-            "worst_closed_minus_open": float(np.min(mtf["closed"] - mtf["open"])),
+            "worst_closed_minus_open": float(np.min(both["closed"] - both["open"])),
             "worse": listed}
 
 

@@ -91,3 +91,15 @@ def test_exposures_the_loop_made_worse_are_counted_and_listed():
     (worse,) = ex["worse"]
     assert worse["start_s"] == pytest.approx(0.1)
     assert worse["mtf_nyquist_closed"][0] < worse["mtf_nyquist_open"][0]
+
+
+def test_a_design_refused_with_an_overloaded_device_says_both():
+    # the quickstart's law on the seed's 60/s device: refused for its peak |S| (rightly), and
+    # the refusal says too that 4 blocks at 100 frames/s are more than the device can take
+    from imc.scenario import ScenarioError
+
+    data = with_changes(yaml.safe_load((ROOT / "scenarios" / "quickstart.yaml").read_text()),
+                        {"correlator.timing": {"enabled": True}})
+    with pytest.raises(ScenarioError, match=r"compensation\.controller.*and correlator\.timing: "
+                                            r"the run asks for 400 correlations/s"):
+        build_loop(build_models(parse_scenario(data), light=True))

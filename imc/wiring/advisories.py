@@ -11,9 +11,12 @@ identifies lines rejects them only after its first identification (~0.9 of its
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from imc.wiring.build import LoopParts, Models
+if TYPE_CHECKING:  # the wiring asks this module when it refuses a design
+    from imc.wiring.build import LoopParts, Models
 
 #: the settling band of the analytic lock time, a fraction of a step of the disturbance
 LOCK_BAND = 0.05

@@ -474,7 +474,13 @@ def build_loop(m: Models, channel=None, plant_sigma_px: float | None = None) -> 
         model = dataclasses.replace(model, controller=controller)
     margins = model.margins()
     if comp.enabled:
-        _check_margins(comp, margins, getattr(controller, "TUNING", "kind"))
+        try:
+            _check_margins(comp, margins, getattr(controller, "TUNING", "kind"))
+        except ScenarioError as e:  # say too when the correlator cannot keep up with the run
+            from imc.wiring.advisories import budget_warning, correlator_budget
+
+            over = budget_warning(m, correlator_budget(m))
+            raise ScenarioError(f"{e}; and {over}" if over else str(e)) from None
     return LoopParts(estimator, controller, actuator, transport, timeline, model, margins,
                      supervisor)
 

@@ -130,13 +130,13 @@ def test_imc_check_refuses_a_bad_scenario_before_running(tmp_path):
 
 def test_metric_sections_are_what_a_run_reports(tiny_scenario):
     """Every top-level key of a real metrics.json is a known section (and expect: can name
-    it); the optional ones (device, link) are the only ones missing."""
+    it); the optional ones (device, link, the product) are the only ones missing."""
     import json
 
     d, _, _ = tiny_scenario
     keys = set(json.loads((d / "g" / "metrics.json").read_text()))
     assert keys <= set(METRIC_SECTIONS)
-    assert set(METRIC_SECTIONS) - keys <= {"correlator_device", "link"}
+    assert set(METRIC_SECTIONS) - keys <= {"correlator_device", "link", "product"}
 
 
 def test_bundled_fast_scenarios_meet_their_expectations(tmp_path):

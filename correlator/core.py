@@ -37,7 +37,11 @@ compiled kernels, :mod:`correlator.kernels`, on threads over the stack; FFTs thr
 5. ``crlb``: the predicted 1-sigma error H^-1 J H^-1 of this estimate from the pair's own
    spectra and the noise level (estimated from the highest frequencies), equal to the
    Cramer-Rao bound 2 sigma^2 (sum g g^T)^-1 for flat weights at high SNR.
-6. validity: PSR above the threshold, no rival peak near the best, texture and finite input,
+6. validity: a detection decision (:mod:`correlator.detection`): the probability that noise
+   alone puts a peak as high as the chosen one in the searched area (``p_false``, from the
+   PSR and the number of searched cells of the whitened surface) at most
+   ``false_valid_rate``, and the PSR above a safeguard floor; no rival peak near the best,
+   texture and finite input,
    a concave peak that is settled (last Newton step and last pass move small against the
    block's own predicted error) and a predicted error below ``max_crlb_px`` (so an error of
    0.5 px is a > 3-sigma event).
@@ -64,7 +68,7 @@ import numpy as np
 import scipy.fft as sfft
 from threadpoolctl import ThreadpoolController
 
-from correlator import fftbackend, gradient, jtc, kernels, peaks, spectral
+from correlator import detection, fftbackend, gradient, jtc, kernels, peaks, spectral
 from correlator.masked import MaskedDetector
 from correlator.optical import JtocModel, OpticalJtc
 
@@ -110,6 +114,11 @@ BAND_RIVAL_SAMPLES = 2
 #: its own (rivals of textured pairs stay below 0.5 of the peak; the repeats of a periodic
 #: pattern and the ridge of a one-directional one reach 0.8-1.0)
 BAND_MAX_RIVAL_RATIO = 0.7
+#: the default PSR floor besides the detection's false-alarm rate (see
+#: ``CorrelatorOptions.psr_threshold``), and the optical correlator's PSR threshold (its
+#: output plane has no noise model)
+PSR_SAFEGUARD = 5.5
+OPTICAL_PSR_THRESHOLD = 7.0
 
 
 @dataclass(frozen=True)
@@ -122,12 +131,16 @@ class ShiftResult:
     valid : (...) bool, the detection passed the threshold and sanity checks.
     peak : (...) float64, peak-to-sidelobe ratio of the SNR-whitened correlation surface.
     crlb : (..., 2) float64, predicted 1-sigma error of each component, px.
+    p_false : (...) float64 or None, the probability that noise alone puts a peak of the
+        detection surface as high as the chosen one (:mod:`correlator.detection`); NaN
+        where the method has no such model (the optical correlator).
     """
 
     shift: np.ndarray
     valid: np.ndarray
     peak: np.ndarray
     crlb: np.ndarray
+    p_false: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -140,11 +153,21 @@ class CorrelatorOptions:
         'gradient', 'parabolic', 'gaussian' or 'com'.
     jtc_filter : 'subtract' (default), 'plain' (joint plane only) or 'fringe'.
     joint_plane : for 'jtc', build the joint input plane explicitly (slower, as the optics do).
-    psr_threshold : minimum peak-to-sidelobe ratio for a valid detection. 7: near the
-        detection threshold (strong texture at SNR 0.5-3, 32^2-256^2 blocks) 5 or 6 let
-        0.25-0.75 % of the pairs through valid with an error beyond 0.5 px (7 with the 0.15 px
-        limit below: none), while the predicted-error gate alone keeps noise-only pairs out
-        at any threshold from 4 to 7.
+    false_valid_rate : a result is valid only when the probability that noise alone puts a
+        peak as high as its peak in the searched area (``ShiftResult.p_false``:
+        :func:`correlator.detection.false_alarm_probability` of its PSR over the searched
+        cells) is at most this. 0.001: a PSR of 4.8 with the default quarter-block search of
+        64^2-256^2 blocks (33^2 cells), 4.5 at 32^2 (17^2); on noise-only pairs the measured
+        rate of P_fa <= 0.001 is 0.0007-0.0012 at 64^2-128^2 and 0.003 at 32^2 (10,000 each).
+    psr_threshold : the least PSR of a valid result besides ``false_valid_rate``, a
+        safeguard. None (default): :data:`PSR_SAFEGUARD` (5.5; 7 for method 'optical', whose
+        output plane has no noise model). With the detection gate alone (no PSR floor) 1 of
+        10,000 noise-only pairs came out valid at 32^2 and at 64^2 (PSR 4.7 and 5.2: the
+        0.001 detection rate leaves ~1e-4 after the other gates), and smooth checkerboards and
+        stripes with their period inside the search 1.1 % of 3000 (0.4 % with 5.5, 0.2 %
+        with 7); 5.5 (a noise-only false-alarm rate of 2e-5 at 33^2 cells) gave 0 of 30,000
+        noise-only pairs. So at the default search the floor, not the 0.001 rate, is the
+        binding PSR; the rate binds for smaller rates or larger searches.
     max_shift_px : largest |shift| component searched; default a quarter of the block size.
     max_crlb_px : largest predicted 1-sigma error of a valid result, px. 0.15: an error of
         0.5 px is a > 3-sigma event on an axis, so even a texture whose every block sits near
@@ -182,7 +205,8 @@ class CorrelatorOptions:
     subpixel: str | None = None
     jtc_filter: str = "subtract"
     joint_plane: bool = False
-    psr_threshold: float = 7.0
+    false_valid_rate: float = 0.001
+    psr_threshold: float | None = None
     max_shift_px: float | None = None
     max_crlb_px: float = 0.15
     weighting: str = "snr"
@@ -212,13 +236,21 @@ class CorrelatorOptions:
         if self.jtc_filter == "plain" and not self.joint_plane:
             raise ValueError("jtc_filter='plain' needs joint_plane=True (the fast path has no "
                              "DC terms to keep)")
-        for name in ("psr_threshold", "max_shift_px", "max_crlb_px", "min_overlap",
+        for name in ("false_valid_rate", "psr_threshold", "max_shift_px", "max_crlb_px",
+                     "min_overlap",
                      "max_rival_ratio", "trust_prediction_px"):
             v = getattr(self, name)
             if v is not None and not np.isfinite(v):  # NaN would pass every test below
                 raise ValueError(f"{name} must be a finite number, got {v}")
+        if self.psr_threshold is None:
+            object.__setattr__(self, "psr_threshold",
+                               OPTICAL_PSR_THRESHOLD if self.method == "optical"
+                               else PSR_SAFEGUARD)
         if self.psr_threshold < 0 or self.iterations < 0 or self.max_crlb_px <= 0:
             raise ValueError("psr_threshold and iterations must be >= 0, max_crlb_px > 0")
+        if not 0.0 < self.false_valid_rate < 1.0:
+            raise ValueError(f"false_valid_rate must be within (0, 1), got "
+                             f"{self.false_valid_rate}")
         if self.max_shift_px is not None and self.max_shift_px < 0:
             raise ValueError(f"max_shift_px must be >= 0, got {self.max_shift_px}")
         if not 0.0 < self.min_overlap <= 1.0:
@@ -496,7 +528,7 @@ class Correlator:
             pred = np.broadcast_to(np.asarray(predicted, dtype=np.float64), (n, 2))
         if n == 0:
             z = np.zeros((0, 2))
-            return ShiftResult(z, np.zeros(0, bool), np.zeros(0), z.copy())
+            return ShiftResult(z, np.zeros(0, bool), np.zeros(0), z.copy(), np.zeros(0))
         with self._lock:
             if self._optical is not None:  # one pass: the emulation threads its FFTs itself
                 seeds = (rng if rng is not None else self._rng).integers(0, 2**63 - 1, size=n)
@@ -514,10 +546,10 @@ class Correlator:
                 parts = self._parallel(
                     lambda s: self._measure(cur_arr[s], idx[s],
                                             None if pred is None else pred[s], cache), n)
-        shift, valid, psr, crlb = (np.concatenate([p[i] for p in parts]) for i in range(4))
+        shift, valid, psr, crlb, pf = (np.concatenate([p[i] for p in parts]) for i in range(5))
         if self._single and np.ndim(cur) == 2:
-            return ShiftResult(shift[0], valid[0], psr[0], crlb[0])
-        return ShiftResult(shift, valid, psr, crlb)
+            return ShiftResult(shift[0], valid[0], psr[0], crlb[0], pf[0])
+        return ShiftResult(shift, valid, psr, crlb, pf)
 
     # ---------------------------------------------------------------------- internals
     def _parallel(self, fn, n: int) -> list:
@@ -636,13 +668,13 @@ class Correlator:
             if self._masked is not None:
                 shift, crlb, converged = self._fourier_masked(y, ridx, cur_arr, noise, d0, cache)
             else:
-                shift, crlb, converged, psr, ambiguous = self._fourier(
+                shift, crlb, converged, psr, ambiguous, cells = self._fourier(
                     y, floor, ridx, cur_arr, noise, ref_m, pred,
                     d_fit if o.joint_plane else None, cache)
         else:
             if self._masked is None:
-                psr, _ = self._band_detect(y, self._ref_bw, ridx, floor,
-                                           np.full((n, 2), -1, np.int64))
+                psr, (_, _, cells) = self._band_detect(y, self._ref_bw, ridx, floor,
+                                                       np.full((n, 2), -1, np.int64))
             if o.subpixel == "gradient":
                 shift, crlb, step = gradient.refine(self._ref0[ridx], self._cur0(cur_arr), d_fit,
                                                     o.iterations)
@@ -652,11 +684,13 @@ class Correlator:
                 shift, converged = d_fit, np.ones(n, bool)
                 crlb = _crlb(ref_m, noise, self._hessian(y, shift), h * w)
         if self._masked is not None:
-            psr, agree = self._common_psr(ridx, cur_arr, shift, cache)
+            psr, agree, cells = self._common_psr(ridx, cur_arr, shift, cache)
             converged &= agree
+        p_false = detection.false_alarm_probability(psr, cells)
         valid = (
             self._ref_ok[ridx]
             & cur_ok
+            & (p_false <= o.false_valid_rate)
             & (psr >= o.psr_threshold)
             & converged
             & ~ambiguous
@@ -665,7 +699,8 @@ class Correlator:
             & np.all(crlb <= o.max_crlb_px, axis=1)
         )
         shift = np.where(np.isfinite(shift), shift, 0.0)
-        return shift, valid, psr, crlb  # the detection's PSR is finite (0 where it is not)
+        # the detection's PSR is finite (0 where it is not)
+        return shift, valid, psr, crlb, p_false
 
     def _cur0(self, cur_arr: np.ndarray) -> np.ndarray:
         return _sanitise(cur_arr)[0]
@@ -690,16 +725,17 @@ class Correlator:
         valid = (self._ref_ok[idx] & cur_ok & (psr >= o.psr_threshold)
                  & np.all(np.abs(shift) <= self.max_shift_px + 0.5, axis=1)
                  & np.all(crlb <= o.max_crlb_px, axis=1))
-        return shift, valid, np.nan_to_num(psr), crlb
+        return shift, valid, np.nan_to_num(psr), crlb, np.full(len(idx), np.nan)
 
     def _band_detect(self, y: np.ndarray, bw: np.ndarray, rows: np.ndarray,
                      floor: np.ndarray, given: np.ndarray):
         """Band detection on the SNR-whitened surfaces of the detection's cross spectra
         ``bw`` y (n, h, k) on the band (``bw`` rows ``rows``): the integer peak
         within the search range (or at the decimated sample ``given`` (n, 2) where >= 0),
-        returned as (PSR (n,), lag (n, 2) px with a parabolic sub-sample step) and the rival
+        returned as (PSR (n,), lag (n, 2) px with a parabolic sub-sample step), the rival
         ratio (n,): the PSR of the best local maximum more than BAND_RIVAL_SAMPLES samples
-        away over the peak's."""
+        away over the peak's, and the cells searched (n,) (the whitened surface's samples,
+        independent: :mod:`correlator.detection`)."""
         lay = self._lay
         n = len(y)
         hb, kb = len(lay.band_rows), lay.band_cols
@@ -711,13 +747,14 @@ class Correlator:
         kernels.detect(surf, self._rows_in, self._cols_in, 2, BAND_RIVAL_SAMPLES, given, lag, psr,
                        ratio)
         lag *= lay.q
-        return psr, (lag, ratio)
+        cells = np.full(n, float(len(self._rows_in) * len(self._cols_in)))
+        return psr, (lag, ratio, cells)
 
     def _fourier(self, y, floor, ridx, cur_arr, noise, ref_m, pred, d_fit, cache):
         """Fourier refinement after the band detection: band Newton from the detected peak
         (or the joint plane's fit ``d_fit``), weighted full-band Newton, common-content
         passes; blocks with a trusted prediction ``pred`` start Newton from it.
-        Returns (shift, crlb, converged, psr, ambiguous)."""
+        Returns (shift, crlb, converged, psr, ambiguous, cells)."""
         o, lay = self.options, self._lay
         h, w = self.shape
         n = len(y)
@@ -732,7 +769,7 @@ class Correlator:
                        & np.all(np.abs(d - pred) <= o.trust_prediction_px, axis=1))
             hs, ws = len(lay.band_rows), 2 * (lay.band_cols - 1)
             given[trusted] = np.rint(d[trusted] / lay.q).astype(np.int64) % [hs, ws]
-        psr, (d0, ratio) = self._band_detect(y, self._ref_bw, ridx, floor, given)
+        psr, (d0, ratio, cells) = self._band_detect(y, self._ref_bw, ridx, floor, given)
         if d_fit is not None:
             d0 = d_fit
         search = np.flatnonzero(~trusted)
@@ -747,7 +784,7 @@ class Correlator:
         far = np.any(np.abs(d) > lay.margin, axis=1) & np.isfinite(d).all(axis=1)
         idx = np.flatnonzero(np.ones(n, bool) if o.rewindow else far)
         settled = self._passes(idx, ridx, cur_arr, noise, d, crlb, settled, cache)
-        return d, crlb, sane & settled, psr, ambiguous
+        return d, crlb, sane & settled, psr, ambiguous, cells
 
     def _fourier_masked(self, y, ridx, cur_arr, noise, d0, cache):
         """Fourier refinement after a masked detection: the lag is good to a bin, so straight
@@ -859,11 +896,14 @@ class Correlator:
         h, w = self.shape
         n = len(d)
         y, floor, _, (bw, rows) = self._pass_spectra(np.arange(n), ridx, cur_arr, d, cache)
-        psr, (lag, _) = self._band_detect(y, bw, rows, floor, np.full((n, 2), -1, np.int64))
+        psr, (lag, _, cells) = self._band_detect(y, bw, rows, floor,
+                                                 np.full((n, 2), -1, np.int64))
         lag = lay.q * np.rint(lag / lay.q)
         size = np.array([h, w])
         diff = np.mod(lag - d + size / 2, size) - size / 2
-        return psr, np.all(np.abs(diff) <= lay.q + 0.5, axis=1)
+        # the masked search chose among its own lags: count those where they are more
+        cells = np.maximum(cells, float(np.count_nonzero(self._masked.search)))
+        return psr, np.all(np.abs(diff) <= lay.q + 0.5, axis=1), cells
 
     def _argmax(self, surf: np.ndarray, q: int) -> tuple[np.ndarray, np.ndarray]:
         """Integer peak (iy, ix) of wrapped surfaces within the search range (scaled by q)."""

@@ -164,10 +164,10 @@ class CorrelatorOptions:
         output plane has no noise model). With the detection gate alone (no PSR floor) 1 of
         10,000 noise-only pairs came out valid at 32^2 and at 64^2 (PSR 4.7 and 5.2: the
         0.001 detection rate leaves ~1e-4 after the other gates), and smooth checkerboards and
-        stripes with their period inside the search 1.1 % of 3000 (0.4 % with 5.5, 0.2 %
+        stripes with their period inside the search 0.8 % of 3000 (0.4 % with 5.5, 0.2 %
         with 7); 5.5 (a noise-only false-alarm rate of 2e-5 at 33^2 cells) gave 0 of 30,000
         noise-only pairs. So at the default search the floor, not the 0.001 rate, is the
-        binding PSR; the rate binds for smaller rates or larger searches.
+        binding PSR; the rate binds below ~2e-5 (or beyond ~50,000 searched cells).
     max_shift_px : largest |shift| component searched; default a quarter of the block size.
     max_crlb_px : largest predicted 1-sigma error of a valid result, px. 0.15: an error of
         0.5 px is a > 3-sigma event on an axis, so even a texture whose every block sits near

@@ -384,6 +384,16 @@ def _pass_windows(n: int, taper: float, lo: np.ndarray, hi: np.ndarray,
     return spectral.tukey_1d(n, taper, 0.5 * (lo + hi), 0.5 * (lo - hi) + shift)
 
 
+class _CurPower:
+    """Box means of the cur blocks' power (n, h, k) float32 from their first common-content
+    pass, the energies (n,) of the windows they were made with, and which are made (n,)."""
+
+    def __init__(self, n: int, shape: tuple[int, int]):
+        self.power = np.empty((n, shape[0], shape[1] // 2 + 1), np.float32)
+        self.energy = np.ones(n)
+        self.have = np.zeros(n, bool)
+
+
 class Correlator:
     """Shift measurement against fixed reference blocks (their spectra computed once).
 
@@ -449,6 +459,8 @@ class Correlator:
         self._pass_fw: np.ndarray | None = None
         self._pass_bw: np.ndarray | None = None
         self._pass_m = np.zeros((n, 3, 3))
+        self._pass_pbox: np.ndarray | None = None
+        self._pass_s2 = np.zeros(n)
         masked = o.detection == "masked" or (o.detection == "auto"
                                              and self.max_shift_px > min(h, w) / 4)
         # unwindowed reference blocks less their means: for the masked search, Lucas-Kanade
@@ -543,6 +555,7 @@ class Correlator:
                     self._pass_wconj = np.empty_like(self._ref_wconj)
                     self._pass_fw = np.empty_like(self._ref_fw)
                     self._pass_bw = np.empty_like(self._ref_bw)
+                    self._pass_pbox = np.empty(self._ref_fw.shape, np.float32)
                 parts = self._parallel(
                     lambda s: self._measure(cur_arr[s], idx[s],
                                             None if pred is None else pred[s], cache), n)
@@ -574,11 +587,12 @@ class Correlator:
                             np.ascontiguousarray(wx, dtype=np.float32), True, out, stats)
         return out, _usable(stats[:, 0], stats[:, 1], stats[:, 2], stats[:, 3])
 
-    def _ref_terms(self, spec: np.ndarray, energy: np.ndarray, out: tuple | None = None):
+    def _ref_terms(self, spec: np.ndarray, energy: np.ndarray, out: tuple | None = None,
+                   pbox: np.ndarray | None = None):
         """W conj(R) (n, h, k), the detection's weights over W at the outer frequencies
         (n, h, k) and on the band (n, hb, kb), CRLB sums (n, 3, 3) and noise variance (n,) of
         reference spectra (n, h, k) of windows with energies (n,) (or into the five arrays
-        ``out``)."""
+        ``out``); with ``pbox`` (n, h, k) float32, also the box means of |R|^2 into it."""
         lay = self._lay
         g = lay.full
         n = len(spec)
@@ -590,7 +604,8 @@ class Correlator:
         kernels.ref_spectra(spec.view(np.float32), lay.immerkaer, lay.immerkaer_norm, energy,
                             lay.smooth, DETECT_SMOOTH_BINS, self.options.weighting == "flat",
                             g.alpha, g.ay, g.ax, g.rows, lay.outer_from, lay.band_rows,
-                            wconj.view(np.float32), fw, bw, m, noise)
+                            wconj.view(np.float32), fw, bw, m, noise,
+                            np.empty((0, 1, 1), np.float32) if pbox is None else pbox)
         return out
 
     def _cross(self, spec: np.ndarray, wconj: np.ndarray, fw: np.ndarray, rows: np.ndarray):
@@ -794,13 +809,17 @@ class Correlator:
         lay = self._lay
         n = len(d0)
         idx = np.arange(n)
-        d, crlb, _ = self._common_pass(idx, ridx, cur_arr, noise, d0, cache, coarse=True)
+        cbox = _CurPower(n, self.shape)
+        d, crlb, _ = self._common_pass(idx, ridx, cur_arr, noise, d0, cache, coarse=True,
+                                       cbox=cbox)
         sane = np.abs(d - d0).max(axis=1) < lay.q + 1
         idx = np.flatnonzero(np.isfinite(d).all(axis=1))
-        settled = self._passes(idx, ridx, cur_arr, noise, d, crlb, np.ones(n, bool), cache)
+        settled = self._passes(idx, ridx, cur_arr, noise, d, crlb, np.ones(n, bool), cache,
+                               cbox)
         return d, crlb, sane & settled
 
-    def _passes(self, idx, ridx, cur_arr, noise, d, crlb, settled, cache):
+    def _passes(self, idx, ridx, cur_arr, noise, d, crlb, settled, cache,
+                cbox: _CurPower | None = None):
         """Common-content passes of blocks ``idx``, in place on d and crlb, repeated to their
         fixed point; returns ``settled`` updated by each block's last pass.
 
@@ -813,12 +832,15 @@ class Correlator:
         settled = settled.copy()
         if not len(idx):
             return settled
+        if cbox is None:
+            cbox = _CurPower(len(d), self.shape)
         prev = np.zeros_like(d)
         moved = np.zeros(len(d))
         for _ in range(COMMON_PASSES):
             if not len(idx):
                 break
-            d2, c2, step2 = self._common_pass(idx, ridx, cur_arr, noise, d[idx], cache)
+            d2, c2, step2 = self._common_pass(idx, ridx, cur_arr, noise, d[idx], cache,
+                                              cbox=cbox)
             step = d2 - d[idx]
             p = prev[idx]
             ratio = np.divide(step, p, out=np.zeros_like(step), where=np.abs(p) > AITKEN_MIN_PX)
@@ -834,13 +856,34 @@ class Correlator:
         return settled & (moved <= np.maximum(COMMON_PASS_MAX_MOVE_PX,
                                               SETTLED_REL * crlb.max(axis=1)))
 
-    def _common_pass(self, idx, ridx, cur_arr, noise, d, cache, coarse: bool = False):
+    def _common_pass(self, idx, ridx, cur_arr, noise, d, cache, coarse: bool = False,
+                     cbox: _CurPower | None = None):
         """One pass of blocks ``idx`` with both windows on the content common to ref and cur
         at lags d; ``coarse``: start with two band Newton steps (d good only to a decimation
-        step). Returns (d, crlb, last Newton step)."""
+        step). The weights are Knapp-Carter's from the power of both blocks (the box means
+        of cur's power are made on a block's first pass and kept in ``cbox``, scaled by the
+        windows' energies after). Returns (d, crlb, last Newton step)."""
         o = self.options
         h, w = self.shape
-        y, _, m, _ = self._pass_spectra(idx, ridx, cur_arr, d, cache)
+        y, _, m, (_, srow), (cspec, pbox, s2r, energy) = self._pass_spectra(
+            idx, ridx, cur_arr, d, cache)
+        if o.weighting == "snr":  # the weights from both images' power
+            g = self._lay.full
+            if cbox is None:
+                cbox = _CurPower(len(cur_arr), self.shape)
+            first = np.flatnonzero(~cbox.have[idx])
+            if len(first):  # the first pass of these blocks: the box means of their power
+                tmp = np.empty((len(first), *cspec.shape[1:]), np.float32)
+                kernels.box_power(cspec.view(np.float32), first.astype(np.int64),
+                                  self._lay.smooth, tmp)
+                cbox.power[idx[first]] = tmp
+                cbox.energy[idx[first]] = energy[first]
+                cbox.have[idx[first]] = True
+            m = np.empty((len(idx), 3, 3))
+            kernels.both_weights(y.view(np.float32), cspec.view(np.float32), pbox,
+                                 np.asarray(srow, dtype=np.int64), cbox.power,
+                                 np.asarray(idx, dtype=np.int64), energy / cbox.energy[idx],
+                                 s2r, noise[idx] * energy, g.alpha, g.ay, g.ax, g.rows, m)
         blk = np.arange(len(idx))
         if coarse:
             d = self._newton(y, blk, d, 2, band=True)[0]
@@ -861,7 +904,9 @@ class Correlator:
         if cache:
             miss = np.flatnonzero(np.any(self._pass_key[rows] != key, axis=1))
             if len(miss):
-                wc, fw, bw, mm, _ = self._pass_reference(rows[miss], mg[miss])
+                wc, fw, bw, mm, _, pb, s2 = self._pass_reference(rows[miss], mg[miss])
+                self._pass_pbox[rows[miss]] = pb
+                self._pass_s2[rows[miss]] = s2
                 self._pass_wconj[rows[miss]] = wc
                 self._pass_fw[rows[miss]] = fw
                 self._pass_bw[rows[miss]] = bw
@@ -869,24 +914,31 @@ class Correlator:
                 self._pass_key[rows[miss]] = key[miss]
             src, fw, bw = self._pass_wconj, self._pass_fw, self._pass_bw
             srow, m = rows, self._pass_m[rows]
+            pbox, s2r = self._pass_pbox, self._pass_s2[rows]
         else:
-            src, fw, bw, m, _ = self._pass_reference(rows, mg)
+            src, fw, bw, m, _, pbox, s2r = self._pass_reference(rows, mg)
             srow = np.arange(len(idx))
         wy = _pass_windows(h, lay.taper[0], mg[:, 0, 0], mg[:, 0, 1], d[:, 0])
         wx = _pass_windows(w, lay.taper[1], mg[:, 1, 0], mg[:, 1, 1], d[:, 1])
         cur_w, _ = self._prep(cur_arr, idx, wy, wx)
-        y, _, floor = self._cross(fftbackend.rfft2(cur_w), src, fw, srow)
-        return y, floor, m, (bw, srow)
+        cspec = fftbackend.rfft2(cur_w)
+        y, _, floor = self._cross(cspec, src, fw, srow)
+        return y, floor, m, (bw, srow), (cspec, pbox, s2r, _energy(wy, wx))
 
     def _pass_reference(self, rows: np.ndarray, mg: np.ndarray):
         """:meth:`_ref_terms` of reference blocks ``rows`` windowed with zero margins
-        mg (m, 2, 2) (their own Knapp-Carter weights)."""
+        mg (m, 2, 2) (their own Knapp-Carter weights), the box means of their power
+        (m, h, k) and the noise power per bin (m,) of their weights."""
         lay = self._lay
         h, w = self.shape
         wy = _pass_windows(h, lay.taper[0], mg[:, 0, 0], mg[:, 0, 1])
         wx = _pass_windows(w, lay.taper[1], mg[:, 1, 0], mg[:, 1, 1])
         ref_w, _ = self._prep(self._ref_in, rows, wy, wx)
-        return self._ref_terms(fftbackend.rfft2(ref_w), _energy(wy, wx))
+        spec = fftbackend.rfft2(ref_w)
+        pbox = np.empty((len(rows), *spec.shape[1:]), np.float32)
+        energy = _energy(wy, wx)
+        wc, fw, bw, mm, noise = self._ref_terms(spec, energy, pbox=pbox)
+        return wc, fw, bw, mm, noise, pbox, noise * energy
 
     def _common_psr(self, ridx, cur_arr, d, cache):
         """PSR (N,) of the whitened surface of the content common at lag ``d`` (N, 2) px, and
@@ -895,7 +947,8 @@ class Correlator:
         lay = self._lay
         h, w = self.shape
         n = len(d)
-        y, floor, _, (bw, rows) = self._pass_spectra(np.arange(n), ridx, cur_arr, d, cache)
+        y, floor, _, (bw, rows), _ = self._pass_spectra(np.arange(n), ridx, cur_arr, d,
+                                                        cache)
         psr, (lag, _, cells) = self._band_detect(y, bw, rows, floor,
                                                  np.full((n, 2), -1, np.int64))
         lag = lay.q * np.rint(lag / lay.q)

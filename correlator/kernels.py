@@ -5,9 +5,10 @@ them in parallel. They fuse what numpy would do in several passes with temporari
 window, mean and sanity statistics of a block (:func:`prep_blocks`); a reference's power,
 noise, Knapp-Carter weights and gradient sums (:func:`ref_spectra`); the cross spectrum with
 the noise and floor sums (:func:`cross_spectra`); the SNR-whitened band (:func:`whiten_band`);
-the peak, PSR and rival peak of a detection surface (:func:`detect`); and Newton's method on
-the spectrum (:func:`newton`). Formulas and references: :mod:`correlator.spectral`,
-:mod:`correlator.core`.
+the peak, PSR and rival peak of a detection surface (:func:`detect`); Newton's method on
+the spectrum (:func:`newton`); and the common-content passes' weights from both blocks'
+power (:func:`box_power`, :func:`both_weights`). Formulas and references:
+:mod:`correlator.spectral`, :mod:`correlator.core`.
 """
 
 from __future__ import annotations

@@ -618,10 +618,12 @@ def box_power(spec, blk, box, out):
 
 
 @nb.njit(**_JIT)
-def both_weights(y, spec, pbox, prow, cbox, crow, cscale, s2r, s2, alpha, ay, ax, rows, m):
+def both_weights(y, spec, pbox, prow, cbox, crow, cscale, s2r, s2, shrink, alpha, ay, ax,
+                 rows, m):
     """Knapp-Carter weights from both images' power: y = W_R conj(R) C (n, h, k) becomes
-    W conj(R) C in place, W = P / (2 P + s2) with P the box mean of (|R|^2 + |C|^2) / 2 less
-    the noise power s2 (n,) per bin.
+    W conj(R) C in place, W = P / (2 P + s2) with P = max(shrink b - s2, 0), b the box mean
+    of (|R|^2 + |C|^2) / 2 and s2 (n,) the noise power per bin (``shrink`` = 1 - k se / b:
+    the power counted where it stands k standard errors se of the box mean above the noise).
 
     spec (n, h, k): the C spectra; pbox (N, h, k) float32: the box means of |R|^2
     (:func:`ref_spectra`, rows ``prow`` (n,)), whose weights W_R were made with the noise
@@ -640,6 +642,7 @@ def both_weights(y, spec, pbox, prow, cbox, crow, cscale, s2r, s2, alpha, ay, ax
         sn2 = np.float32(s2[b])
         half = np.float32(0.5) * sn2
         cf = np.float32(0.5 * cscale[b])
+        sk = np.float32(shrink)
         pr = pbox[prow[b]]
         pcb = cbox[crow[b]]
         for a in range(3):
@@ -653,7 +656,8 @@ def both_weights(y, spec, pbox, prow, cbox, crow, cscale, s2r, s2, alpha, ay, ax
             for j in range(k):
                 ps = max(pr[i, j] - sr2, np.float32(0.0))
                 wr = ps / (np.float32(2.0) * ps + sr2 + np.float32(1e-30))
-                pb = max(np.float32(0.5) * pr[i, j] + cf * pcb[i, j] - sn2, np.float32(0.0))
+                pb = max(sk * (np.float32(0.5) * pr[i, j] + cf * pcb[i, j]) - sn2,
+                         np.float32(0.0))
                 wn = pb / (np.float32(2.0) * pb + sn2 + np.float32(1e-30))
                 g = wn / wr if wr > 0 else np.float32(0.0)
                 vr = yr[2 * j]

@@ -86,7 +86,7 @@ def test_both_weights_reduce_to_the_reference_weights_for_identical_blocks():
     s2 = noise * energy
     m = np.empty((n, 3, 3))
     kernels.both_weights(y.view(np.float32), spec.view(np.float32), pbox, np.arange(n), cbox,
-                         np.arange(n), np.ones(n), s2, s2, g.alpha, g.ay, g.ax, g.rows, m)
+                         np.arange(n), np.ones(n), s2, s2, 1.0, g.alpha, g.ay, g.ax, g.rows, m)
     assert np.allclose(y, y0, rtol=1e-4, atol=1e-6 * np.abs(y0).max())
     iu = [(0, 0), (0, 1), (0, 2), (1, 0), (1, 1), (2, 0)]
     for a, c in iu:

@@ -30,14 +30,24 @@ compiled kernels, :mod:`correlator.kernels`, on threads over the stack; FFTs thr
    ``rewindow=True``) get passes with both windows on the common content: ref's zero within
    whole-pixel margins that hold the shift, cur's the same moved by the estimate (each block
    less its window mean). A block's pass reference is kept while its margins hold, so a
-   tracker pays one cur FFT per pass. The passes repeat to their fixed point
+   tracker pays one cur FFT per pass. The passes' Knapp-Carter weights take the texture
+   power from both blocks: the box mean of (|R|^2 + |C|^2) / 2 less the noise and one
+   standard error of that mean (:data:`BOTH_POWER_SE`), whose estimation noise is half that
+   of the reference's power alone (cur's box mean is made on the block's first pass). The
+   weights are functions of the magnitudes only, so they do not pull the estimate towards
+   the lag at which they were made. The passes repeat to their fixed point
    (Aitken-accelerated). ``gradient``: symmetric Lucas-Kanade on cubic B-splines.
    ``parabolic``, ``gaussian``, ``com`` (the paper's centre of mass): 3-point fits on the
    method's full surface.
 5. ``crlb``: the predicted 1-sigma error H^-1 J H^-1 of this estimate from the pair's own
-   spectra and the noise level (estimated from the highest frequencies), equal to the
-   Cramer-Rao bound 2 sigma^2 (sum g g^T)^-1 for flat weights at high SNR.
-6. validity: PSR above the threshold, no rival peak near the best, texture and finite input,
+   spectra (after the passes, J from the same weights and (|R|^2 + |C|^2) / 2) and the noise
+   level (estimated from the highest frequencies), equal to the Cramer-Rao bound
+   2 sigma^2 (sum g g^T)^-1 for flat weights at high SNR.
+6. validity: a detection decision (:mod:`correlator.detection`): the probability that noise
+   alone puts a peak as high as the chosen one in the searched area (``p_false``, from the
+   PSR and the number of searched cells of the whitened surface) at most
+   ``false_valid_rate``, and the PSR above a safeguard floor; no rival peak near the best,
+   texture and finite input,
    a concave peak that is settled (last Newton step and last pass move small against the
    block's own predicted error) and a predicted error below ``max_crlb_px`` (so an error of
    0.5 px is a > 3-sigma event).
@@ -64,7 +74,7 @@ import numpy as np
 import scipy.fft as sfft
 from threadpoolctl import ThreadpoolController
 
-from correlator import fftbackend, gradient, jtc, kernels, peaks, spectral
+from correlator import detection, fftbackend, gradient, jtc, kernels, peaks, spectral
 from correlator.masked import MaskedDetector
 from correlator.optical import JtocModel, OpticalJtc
 
@@ -93,8 +103,25 @@ NEWTON_STOP_PX = 1e-3
 #: for the Knapp-Carter weights: 31 bins at 128^2. The weights' efficiency at low SNR is set by
 #: this average's noise: 11 bins gave 1.21x the CRLB on the medium texture at SNR 10 and
 #: 1.6-1.9x the Knapp-Carter bound on low-contrast photographs, 31 bins 1.17x and 1.2-1.4x
-#: (CRLB of central differences, 1.3x high; against the spectral CRLB: 1.55x and 1.48x)
+#: (CRLB of central differences, 1.3x high; against the spectral CRLB: 1.55x and 1.48x).
+#: The passes average both blocks' power over the same box (half the noise of the average;
+#: issue 25: 1-3 % less RMS at SNR 1.6, 6 % on the medium texture at SNR 3, none at SNR 10;
+#: over the reference-only weights, the weights from the smoothed noise-free power, the best
+#: a smoothed estimate can do, gain 6-13 %, the per-bin oracle weights of
+#: :func:`correlator.testimages.correlation_bound_px` 19-26 %)
 SMOOTH_FRACTION = 0.12
+#: the passes count the box mean b of both blocks' power as texture where it stands this many
+#: standard errors above the noise: P = max(b (1 - k / (sqrt 2 box)) - s2, 0) (b averages
+#: 2 box^2 bins of roughly exponential power: se = b / (sqrt 2 box)). Where the texture is
+#: below the noise (beyond an optics cut-off, most of a weak block's spectrum) b - s2 is the
+#: box mean's noise, and its positive part (0.4 se on average) gave those bins weights at the
+#: highest frequencies. Measured on the same draws, k = 0 / 0.5 / 1 / 2: valid and within
+#: 0.5 px 31 / 36 / 40 / 44 % on the weak texture at SNR 10 and 42 / 47 / 54 / 61 % on the
+#: medium one at SNR 3 (RMS 1.36 / 1.32 / 1.28 / 1.24x the correlation bound), but on
+#: low-contrast photographs (power at every frequency) 82.5 / 82.6 / 82.2 / 81.3 % and on
+#: grass and gravel at SNR 1.6 1.266 / 1.260 / 1.260 / 1.271x: one standard error keeps the
+#: photographs and takes most of the gain; none at SNR 10
+BOTH_POWER_SE = 1.0
 #: ... and for the detection's whitening over 11 bins: selective weights (a wide average lets
 #: noise-dominated frequencies into the whitened surface and lowers the PSR of good matches)
 DETECT_SMOOTH_BINS = 11
@@ -110,6 +137,11 @@ BAND_RIVAL_SAMPLES = 2
 #: its own (rivals of textured pairs stay below 0.5 of the peak; the repeats of a periodic
 #: pattern and the ridge of a one-directional one reach 0.8-1.0)
 BAND_MAX_RIVAL_RATIO = 0.7
+#: the default PSR floor besides the detection's false-alarm rate (see
+#: ``CorrelatorOptions.psr_threshold``), and the optical correlator's PSR threshold (its
+#: output plane has no noise model)
+PSR_SAFEGUARD = 5.5
+OPTICAL_PSR_THRESHOLD = 7.0
 
 
 @dataclass(frozen=True)
@@ -122,12 +154,16 @@ class ShiftResult:
     valid : (...) bool, the detection passed the threshold and sanity checks.
     peak : (...) float64, peak-to-sidelobe ratio of the SNR-whitened correlation surface.
     crlb : (..., 2) float64, predicted 1-sigma error of each component, px.
+    p_false : (...) float64 or None, the probability that noise alone puts a peak of the
+        detection surface as high as the chosen one (:mod:`correlator.detection`); NaN
+        where the method has no such model (the optical correlator).
     """
 
     shift: np.ndarray
     valid: np.ndarray
     peak: np.ndarray
     crlb: np.ndarray
+    p_false: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -140,11 +176,21 @@ class CorrelatorOptions:
         'gradient', 'parabolic', 'gaussian' or 'com'.
     jtc_filter : 'subtract' (default), 'plain' (joint plane only) or 'fringe'.
     joint_plane : for 'jtc', build the joint input plane explicitly (slower, as the optics do).
-    psr_threshold : minimum peak-to-sidelobe ratio for a valid detection. 7: near the
-        detection threshold (strong texture at SNR 0.5-3, 32^2-256^2 blocks) 5 or 6 let
-        0.25-0.75 % of the pairs through valid with an error beyond 0.5 px (7 with the 0.15 px
-        limit below: none), while the predicted-error gate alone keeps noise-only pairs out
-        at any threshold from 4 to 7.
+    false_valid_rate : a result is valid only when the probability that noise alone puts a
+        peak as high as its peak in the searched area (``ShiftResult.p_false``:
+        :func:`correlator.detection.false_alarm_probability` of its PSR over the searched
+        cells) is at most this. 0.001: a PSR of 4.8 with the default quarter-block search of
+        64^2-256^2 blocks (33^2 cells), 4.5 at 32^2 (17^2); on noise-only pairs the measured
+        rate of P_fa <= 0.001 is 0.0007-0.0012 at 64^2-128^2 and 0.003 at 32^2 (10,000 each).
+    psr_threshold : the least PSR of a valid result besides ``false_valid_rate``, a
+        safeguard. None (default): :data:`PSR_SAFEGUARD` (5.5; 7 for method 'optical', whose
+        output plane has no noise model). With the detection gate alone (no PSR floor) 1 of
+        10,000 noise-only pairs came out valid at 32^2 and at 64^2 (PSR 4.7 and 5.2: the
+        0.001 detection rate leaves ~1e-4 after the other gates), and smooth checkerboards and
+        stripes with their period inside the search 0.8 % of 3000 (0.4 % with 5.5, 0.2 %
+        with 7); 5.5 (a noise-only false-alarm rate of 2e-5 at 33^2 cells) gave 0 of 30,000
+        noise-only pairs. So at the default search the floor, not the 0.001 rate, is the
+        binding PSR; the rate binds below ~2e-5 (or beyond ~50,000 searched cells).
     max_shift_px : largest |shift| component searched; default a quarter of the block size.
     max_crlb_px : largest predicted 1-sigma error of a valid result, px. 0.15: an error of
         0.5 px is a > 3-sigma event on an axis, so even a texture whose every block sits near
@@ -182,7 +228,8 @@ class CorrelatorOptions:
     subpixel: str | None = None
     jtc_filter: str = "subtract"
     joint_plane: bool = False
-    psr_threshold: float = 7.0
+    false_valid_rate: float = 0.001
+    psr_threshold: float | None = None
     max_shift_px: float | None = None
     max_crlb_px: float = 0.15
     weighting: str = "snr"
@@ -212,13 +259,21 @@ class CorrelatorOptions:
         if self.jtc_filter == "plain" and not self.joint_plane:
             raise ValueError("jtc_filter='plain' needs joint_plane=True (the fast path has no "
                              "DC terms to keep)")
-        for name in ("psr_threshold", "max_shift_px", "max_crlb_px", "min_overlap",
+        for name in ("false_valid_rate", "psr_threshold", "max_shift_px", "max_crlb_px",
+                     "min_overlap",
                      "max_rival_ratio", "trust_prediction_px"):
             v = getattr(self, name)
             if v is not None and not np.isfinite(v):  # NaN would pass every test below
                 raise ValueError(f"{name} must be a finite number, got {v}")
+        if self.psr_threshold is None:
+            object.__setattr__(self, "psr_threshold",
+                               OPTICAL_PSR_THRESHOLD if self.method == "optical"
+                               else PSR_SAFEGUARD)
         if self.psr_threshold < 0 or self.iterations < 0 or self.max_crlb_px <= 0:
             raise ValueError("psr_threshold and iterations must be >= 0, max_crlb_px > 0")
+        if not 0.0 < self.false_valid_rate < 1.0:
+            raise ValueError(f"false_valid_rate must be within (0, 1), got "
+                             f"{self.false_valid_rate}")
         if self.max_shift_px is not None and self.max_shift_px < 0:
             raise ValueError(f"max_shift_px must be >= 0, got {self.max_shift_px}")
         if not 0.0 < self.min_overlap <= 1.0:
@@ -352,6 +407,16 @@ def _pass_windows(n: int, taper: float, lo: np.ndarray, hi: np.ndarray,
     return spectral.tukey_1d(n, taper, 0.5 * (lo + hi), 0.5 * (lo - hi) + shift)
 
 
+class _CurPower:
+    """Box means of the cur blocks' power (n, h, k) float32 from their first common-content
+    pass, the energies (n,) of the windows they were made with, and which are made (n,)."""
+
+    def __init__(self, n: int, shape: tuple[int, int]):
+        self.power = np.empty((n, shape[0], shape[1] // 2 + 1), np.float32)
+        self.energy = np.ones(n)
+        self.have = np.zeros(n, bool)
+
+
 class Correlator:
     """Shift measurement against fixed reference blocks (their spectra computed once).
 
@@ -417,6 +482,8 @@ class Correlator:
         self._pass_fw: np.ndarray | None = None
         self._pass_bw: np.ndarray | None = None
         self._pass_m = np.zeros((n, 3, 3))
+        self._pass_pbox: np.ndarray | None = None
+        self._pass_s2 = np.zeros(n)
         masked = o.detection == "masked" or (o.detection == "auto"
                                              and self.max_shift_px > min(h, w) / 4)
         # unwindowed reference blocks less their means: for the masked search, Lucas-Kanade
@@ -496,7 +563,7 @@ class Correlator:
             pred = np.broadcast_to(np.asarray(predicted, dtype=np.float64), (n, 2))
         if n == 0:
             z = np.zeros((0, 2))
-            return ShiftResult(z, np.zeros(0, bool), np.zeros(0), z.copy())
+            return ShiftResult(z, np.zeros(0, bool), np.zeros(0), z.copy(), np.zeros(0))
         with self._lock:
             if self._optical is not None:  # one pass: the emulation threads its FFTs itself
                 seeds = (rng if rng is not None else self._rng).integers(0, 2**63 - 1, size=n)
@@ -511,13 +578,14 @@ class Correlator:
                     self._pass_wconj = np.empty_like(self._ref_wconj)
                     self._pass_fw = np.empty_like(self._ref_fw)
                     self._pass_bw = np.empty_like(self._ref_bw)
+                    self._pass_pbox = np.empty(self._ref_fw.shape, np.float32)
                 parts = self._parallel(
                     lambda s: self._measure(cur_arr[s], idx[s],
                                             None if pred is None else pred[s], cache), n)
-        shift, valid, psr, crlb = (np.concatenate([p[i] for p in parts]) for i in range(4))
+        shift, valid, psr, crlb, pf = (np.concatenate([p[i] for p in parts]) for i in range(5))
         if self._single and np.ndim(cur) == 2:
-            return ShiftResult(shift[0], valid[0], psr[0], crlb[0])
-        return ShiftResult(shift, valid, psr, crlb)
+            return ShiftResult(shift[0], valid[0], psr[0], crlb[0], pf[0])
+        return ShiftResult(shift, valid, psr, crlb, pf)
 
     # ---------------------------------------------------------------------- internals
     def _parallel(self, fn, n: int) -> list:
@@ -542,11 +610,12 @@ class Correlator:
                             np.ascontiguousarray(wx, dtype=np.float32), True, out, stats)
         return out, _usable(stats[:, 0], stats[:, 1], stats[:, 2], stats[:, 3])
 
-    def _ref_terms(self, spec: np.ndarray, energy: np.ndarray, out: tuple | None = None):
+    def _ref_terms(self, spec: np.ndarray, energy: np.ndarray, out: tuple | None = None,
+                   pbox: np.ndarray | None = None):
         """W conj(R) (n, h, k), the detection's weights over W at the outer frequencies
         (n, h, k) and on the band (n, hb, kb), CRLB sums (n, 3, 3) and noise variance (n,) of
         reference spectra (n, h, k) of windows with energies (n,) (or into the five arrays
-        ``out``)."""
+        ``out``); with ``pbox`` (n, h, k) float32, also the box means of |R|^2 into it."""
         lay = self._lay
         g = lay.full
         n = len(spec)
@@ -558,7 +627,8 @@ class Correlator:
         kernels.ref_spectra(spec.view(np.float32), lay.immerkaer, lay.immerkaer_norm, energy,
                             lay.smooth, DETECT_SMOOTH_BINS, self.options.weighting == "flat",
                             g.alpha, g.ay, g.ax, g.rows, lay.outer_from, lay.band_rows,
-                            wconj.view(np.float32), fw, bw, m, noise)
+                            wconj.view(np.float32), fw, bw, m, noise,
+                            np.empty((0, 1, 1), np.float32) if pbox is None else pbox)
         return out
 
     def _cross(self, spec: np.ndarray, wconj: np.ndarray, fw: np.ndarray, rows: np.ndarray):
@@ -636,13 +706,13 @@ class Correlator:
             if self._masked is not None:
                 shift, crlb, converged = self._fourier_masked(y, ridx, cur_arr, noise, d0, cache)
             else:
-                shift, crlb, converged, psr, ambiguous = self._fourier(
+                shift, crlb, converged, psr, ambiguous, cells = self._fourier(
                     y, floor, ridx, cur_arr, noise, ref_m, pred,
                     d_fit if o.joint_plane else None, cache)
         else:
             if self._masked is None:
-                psr, _ = self._band_detect(y, self._ref_bw, ridx, floor,
-                                           np.full((n, 2), -1, np.int64))
+                psr, (_, _, cells) = self._band_detect(y, self._ref_bw, ridx, floor,
+                                                       np.full((n, 2), -1, np.int64))
             if o.subpixel == "gradient":
                 shift, crlb, step = gradient.refine(self._ref0[ridx], self._cur0(cur_arr), d_fit,
                                                     o.iterations)
@@ -652,11 +722,13 @@ class Correlator:
                 shift, converged = d_fit, np.ones(n, bool)
                 crlb = _crlb(ref_m, noise, self._hessian(y, shift), h * w)
         if self._masked is not None:
-            psr, agree = self._common_psr(ridx, cur_arr, shift, cache)
+            psr, agree, cells = self._common_psr(ridx, cur_arr, shift, cache)
             converged &= agree
+        p_false = detection.false_alarm_probability(psr, cells)
         valid = (
             self._ref_ok[ridx]
             & cur_ok
+            & (p_false <= o.false_valid_rate)
             & (psr >= o.psr_threshold)
             & converged
             & ~ambiguous
@@ -665,7 +737,8 @@ class Correlator:
             & np.all(crlb <= o.max_crlb_px, axis=1)
         )
         shift = np.where(np.isfinite(shift), shift, 0.0)
-        return shift, valid, psr, crlb  # the detection's PSR is finite (0 where it is not)
+        # the detection's PSR is finite (0 where it is not)
+        return shift, valid, psr, crlb, p_false
 
     def _cur0(self, cur_arr: np.ndarray) -> np.ndarray:
         return _sanitise(cur_arr)[0]
@@ -690,16 +763,17 @@ class Correlator:
         valid = (self._ref_ok[idx] & cur_ok & (psr >= o.psr_threshold)
                  & np.all(np.abs(shift) <= self.max_shift_px + 0.5, axis=1)
                  & np.all(crlb <= o.max_crlb_px, axis=1))
-        return shift, valid, np.nan_to_num(psr), crlb
+        return shift, valid, np.nan_to_num(psr), crlb, np.full(len(idx), np.nan)
 
     def _band_detect(self, y: np.ndarray, bw: np.ndarray, rows: np.ndarray,
                      floor: np.ndarray, given: np.ndarray):
         """Band detection on the SNR-whitened surfaces of the detection's cross spectra
         ``bw`` y (n, h, k) on the band (``bw`` rows ``rows``): the integer peak
         within the search range (or at the decimated sample ``given`` (n, 2) where >= 0),
-        returned as (PSR (n,), lag (n, 2) px with a parabolic sub-sample step) and the rival
+        returned as (PSR (n,), lag (n, 2) px with a parabolic sub-sample step), the rival
         ratio (n,): the PSR of the best local maximum more than BAND_RIVAL_SAMPLES samples
-        away over the peak's."""
+        away over the peak's, and the cells searched (n,) (the whitened surface's samples,
+        independent: :mod:`correlator.detection`)."""
         lay = self._lay
         n = len(y)
         hb, kb = len(lay.band_rows), lay.band_cols
@@ -711,13 +785,14 @@ class Correlator:
         kernels.detect(surf, self._rows_in, self._cols_in, 2, BAND_RIVAL_SAMPLES, given, lag, psr,
                        ratio)
         lag *= lay.q
-        return psr, (lag, ratio)
+        cells = np.full(n, float(len(self._rows_in) * len(self._cols_in)))
+        return psr, (lag, ratio, cells)
 
     def _fourier(self, y, floor, ridx, cur_arr, noise, ref_m, pred, d_fit, cache):
         """Fourier refinement after the band detection: band Newton from the detected peak
         (or the joint plane's fit ``d_fit``), weighted full-band Newton, common-content
         passes; blocks with a trusted prediction ``pred`` start Newton from it.
-        Returns (shift, crlb, converged, psr, ambiguous)."""
+        Returns (shift, crlb, converged, psr, ambiguous, cells)."""
         o, lay = self.options, self._lay
         h, w = self.shape
         n = len(y)
@@ -732,7 +807,7 @@ class Correlator:
                        & np.all(np.abs(d - pred) <= o.trust_prediction_px, axis=1))
             hs, ws = len(lay.band_rows), 2 * (lay.band_cols - 1)
             given[trusted] = np.rint(d[trusted] / lay.q).astype(np.int64) % [hs, ws]
-        psr, (d0, ratio) = self._band_detect(y, self._ref_bw, ridx, floor, given)
+        psr, (d0, ratio, cells) = self._band_detect(y, self._ref_bw, ridx, floor, given)
         if d_fit is not None:
             d0 = d_fit
         search = np.flatnonzero(~trusted)
@@ -747,7 +822,7 @@ class Correlator:
         far = np.any(np.abs(d) > lay.margin, axis=1) & np.isfinite(d).all(axis=1)
         idx = np.flatnonzero(np.ones(n, bool) if o.rewindow else far)
         settled = self._passes(idx, ridx, cur_arr, noise, d, crlb, settled, cache)
-        return d, crlb, sane & settled, psr, ambiguous
+        return d, crlb, sane & settled, psr, ambiguous, cells
 
     def _fourier_masked(self, y, ridx, cur_arr, noise, d0, cache):
         """Fourier refinement after a masked detection: the lag is good to a bin, so straight
@@ -757,13 +832,17 @@ class Correlator:
         lay = self._lay
         n = len(d0)
         idx = np.arange(n)
-        d, crlb, _ = self._common_pass(idx, ridx, cur_arr, noise, d0, cache, coarse=True)
+        cbox = _CurPower(n, self.shape)
+        d, crlb, _ = self._common_pass(idx, ridx, cur_arr, noise, d0, cache, coarse=True,
+                                       cbox=cbox)
         sane = np.abs(d - d0).max(axis=1) < lay.q + 1
         idx = np.flatnonzero(np.isfinite(d).all(axis=1))
-        settled = self._passes(idx, ridx, cur_arr, noise, d, crlb, np.ones(n, bool), cache)
+        settled = self._passes(idx, ridx, cur_arr, noise, d, crlb, np.ones(n, bool), cache,
+                               cbox)
         return d, crlb, sane & settled
 
-    def _passes(self, idx, ridx, cur_arr, noise, d, crlb, settled, cache):
+    def _passes(self, idx, ridx, cur_arr, noise, d, crlb, settled, cache,
+                cbox: _CurPower | None = None):
         """Common-content passes of blocks ``idx``, in place on d and crlb, repeated to their
         fixed point; returns ``settled`` updated by each block's last pass.
 
@@ -776,12 +855,15 @@ class Correlator:
         settled = settled.copy()
         if not len(idx):
             return settled
+        if cbox is None:
+            cbox = _CurPower(len(d), self.shape)
         prev = np.zeros_like(d)
         moved = np.zeros(len(d))
         for _ in range(COMMON_PASSES):
             if not len(idx):
                 break
-            d2, c2, step2 = self._common_pass(idx, ridx, cur_arr, noise, d[idx], cache)
+            d2, c2, step2 = self._common_pass(idx, ridx, cur_arr, noise, d[idx], cache,
+                                              cbox=cbox)
             step = d2 - d[idx]
             p = prev[idx]
             ratio = np.divide(step, p, out=np.zeros_like(step), where=np.abs(p) > AITKEN_MIN_PX)
@@ -797,13 +879,36 @@ class Correlator:
         return settled & (moved <= np.maximum(COMMON_PASS_MAX_MOVE_PX,
                                               SETTLED_REL * crlb.max(axis=1)))
 
-    def _common_pass(self, idx, ridx, cur_arr, noise, d, cache, coarse: bool = False):
+    def _common_pass(self, idx, ridx, cur_arr, noise, d, cache, coarse: bool = False,
+                     cbox: _CurPower | None = None):
         """One pass of blocks ``idx`` with both windows on the content common to ref and cur
         at lags d; ``coarse``: start with two band Newton steps (d good only to a decimation
-        step). Returns (d, crlb, last Newton step)."""
+        step). The weights are Knapp-Carter's from the power of both blocks (the box means
+        of cur's power are made on a block's first pass and kept in ``cbox``, scaled by the
+        windows' energies after). Returns (d, crlb, last Newton step)."""
         o = self.options
         h, w = self.shape
-        y, _, m, _ = self._pass_spectra(idx, ridx, cur_arr, d, cache)
+        y, _, m, (_, srow), (cspec, pbox, s2r, energy) = self._pass_spectra(
+            idx, ridx, cur_arr, d, cache)
+        if o.weighting == "snr":  # the weights from both images' power
+            g = self._lay.full
+            if cbox is None:
+                cbox = _CurPower(len(cur_arr), self.shape)
+            first = np.flatnonzero(~cbox.have[idx])
+            if len(first):  # the first pass of these blocks: the box means of their power
+                tmp = np.empty((len(first), *cspec.shape[1:]), np.float32)
+                kernels.box_power(cspec.view(np.float32), first.astype(np.int64),
+                                  self._lay.smooth, tmp)
+                cbox.power[idx[first]] = tmp
+                cbox.energy[idx[first]] = energy[first]
+                cbox.have[idx[first]] = True
+            m = np.empty((len(idx), 3, 3))
+            kernels.both_weights(y.view(np.float32), cspec.view(np.float32), pbox,
+                                 np.asarray(srow, dtype=np.int64), cbox.power,
+                                 np.asarray(idx, dtype=np.int64), energy / cbox.energy[idx],
+                                 s2r, noise[idx] * energy,
+                                 1.0 - BOTH_POWER_SE / (np.sqrt(2.0) * self._lay.smooth),
+                                 g.alpha, g.ay, g.ax, g.rows, m)
         blk = np.arange(len(idx))
         if coarse:
             d = self._newton(y, blk, d, 2, band=True)[0]
@@ -824,7 +929,9 @@ class Correlator:
         if cache:
             miss = np.flatnonzero(np.any(self._pass_key[rows] != key, axis=1))
             if len(miss):
-                wc, fw, bw, mm, _ = self._pass_reference(rows[miss], mg[miss])
+                wc, fw, bw, mm, _, pb, s2 = self._pass_reference(rows[miss], mg[miss])
+                self._pass_pbox[rows[miss]] = pb
+                self._pass_s2[rows[miss]] = s2
                 self._pass_wconj[rows[miss]] = wc
                 self._pass_fw[rows[miss]] = fw
                 self._pass_bw[rows[miss]] = bw
@@ -832,24 +939,31 @@ class Correlator:
                 self._pass_key[rows[miss]] = key[miss]
             src, fw, bw = self._pass_wconj, self._pass_fw, self._pass_bw
             srow, m = rows, self._pass_m[rows]
+            pbox, s2r = self._pass_pbox, self._pass_s2[rows]
         else:
-            src, fw, bw, m, _ = self._pass_reference(rows, mg)
+            src, fw, bw, m, _, pbox, s2r = self._pass_reference(rows, mg)
             srow = np.arange(len(idx))
         wy = _pass_windows(h, lay.taper[0], mg[:, 0, 0], mg[:, 0, 1], d[:, 0])
         wx = _pass_windows(w, lay.taper[1], mg[:, 1, 0], mg[:, 1, 1], d[:, 1])
         cur_w, _ = self._prep(cur_arr, idx, wy, wx)
-        y, _, floor = self._cross(fftbackend.rfft2(cur_w), src, fw, srow)
-        return y, floor, m, (bw, srow)
+        cspec = fftbackend.rfft2(cur_w)
+        y, _, floor = self._cross(cspec, src, fw, srow)
+        return y, floor, m, (bw, srow), (cspec, pbox, s2r, _energy(wy, wx))
 
     def _pass_reference(self, rows: np.ndarray, mg: np.ndarray):
         """:meth:`_ref_terms` of reference blocks ``rows`` windowed with zero margins
-        mg (m, 2, 2) (their own Knapp-Carter weights)."""
+        mg (m, 2, 2) (their own Knapp-Carter weights), the box means of their power
+        (m, h, k) and the noise power per bin (m,) of their weights."""
         lay = self._lay
         h, w = self.shape
         wy = _pass_windows(h, lay.taper[0], mg[:, 0, 0], mg[:, 0, 1])
         wx = _pass_windows(w, lay.taper[1], mg[:, 1, 0], mg[:, 1, 1])
         ref_w, _ = self._prep(self._ref_in, rows, wy, wx)
-        return self._ref_terms(fftbackend.rfft2(ref_w), _energy(wy, wx))
+        spec = fftbackend.rfft2(ref_w)
+        pbox = np.empty((len(rows), *spec.shape[1:]), np.float32)
+        energy = _energy(wy, wx)
+        wc, fw, bw, mm, noise = self._ref_terms(spec, energy, pbox=pbox)
+        return wc, fw, bw, mm, noise, pbox, noise * energy
 
     def _common_psr(self, ridx, cur_arr, d, cache):
         """PSR (N,) of the whitened surface of the content common at lag ``d`` (N, 2) px, and
@@ -858,12 +972,16 @@ class Correlator:
         lay = self._lay
         h, w = self.shape
         n = len(d)
-        y, floor, _, (bw, rows) = self._pass_spectra(np.arange(n), ridx, cur_arr, d, cache)
-        psr, (lag, _) = self._band_detect(y, bw, rows, floor, np.full((n, 2), -1, np.int64))
+        y, floor, _, (bw, rows), _ = self._pass_spectra(np.arange(n), ridx, cur_arr, d,
+                                                        cache)
+        psr, (lag, _, cells) = self._band_detect(y, bw, rows, floor,
+                                                 np.full((n, 2), -1, np.int64))
         lag = lay.q * np.rint(lag / lay.q)
         size = np.array([h, w])
         diff = np.mod(lag - d + size / 2, size) - size / 2
-        return psr, np.all(np.abs(diff) <= lay.q + 0.5, axis=1)
+        # the masked search chose among its own lags: count those where they are more
+        cells = np.maximum(cells, float(np.count_nonzero(self._masked.search)))
+        return psr, np.all(np.abs(diff) <= lay.q + 0.5, axis=1), cells
 
     def _argmax(self, surf: np.ndarray, q: int) -> tuple[np.ndarray, np.ndarray]:
         """Integer peak (iy, ix) of wrapped surfaces within the search range (scaled by q)."""

@@ -5,9 +5,10 @@ them in parallel. They fuse what numpy would do in several passes with temporari
 window, mean and sanity statistics of a block (:func:`prep_blocks`); a reference's power,
 noise, Knapp-Carter weights and gradient sums (:func:`ref_spectra`); the cross spectrum with
 the noise and floor sums (:func:`cross_spectra`); the SNR-whitened band (:func:`whiten_band`);
-the peak, PSR and rival peak of a detection surface (:func:`detect`); and Newton's method on
-the spectrum (:func:`newton`). Formulas and references: :mod:`correlator.spectral`,
-:mod:`correlator.core`.
+the peak, PSR and rival peak of a detection surface (:func:`detect`); Newton's method on
+the spectrum (:func:`newton`); and the common-content passes' weights from both blocks'
+power (:func:`box_power`, :func:`both_weights`). Formulas and references:
+:mod:`correlator.spectral`, :mod:`correlator.core`.
 """
 
 from __future__ import annotations
@@ -99,7 +100,7 @@ def prep_blocks(blocks, blk, wy, wx, weighted, out, stats):
 
 @nb.njit(**_JIT)
 def ref_spectra(spec, imm, imm_norm, energy, box, box_det, flat, alpha, ay, ax, rows,
-                outer_from, band_rows, wconj, fw, bw, m, noise):
+                outer_from, band_rows, wconj, fw, bw, m, noise, pbox):
     """Per reference block: noise variance, Knapp-Carter weights W, W conj(R), gradient sums.
 
     spec (n, h, k) complex64 one-sided spectra of windowed blocks; imm (h, k) Immerkaer
@@ -111,8 +112,9 @@ def ref_spectra(spec, imm, imm_norm, energy, box, box_det, flat, alpha, ay, ax, 
     frequencies (from column outer_from[i] of row i; 0 elsewhere), bw (n, len(band_rows),
     band columns) float32 that ratio on the central band. Writes wconj = W conj(R),
     m (n, 3, 3) float64 (the sums alpha rows a_y^i a_x^j W^2 (|R|^2 - s2 / 2), i + j <= 2: see
-    :func:`crlb`) and noise (n,) pixel variance. The complex arrays (n, h, k) are passed as
-    their interleaved float32 views (n, h, 2k).
+    :func:`crlb`), noise (n,) pixel variance and, where pbox (float32) has n blocks (not 1),
+    the box mean of |R|^2 pbox (n, h, k) (for :func:`both_weights`). The complex arrays
+    (n, h, k) are passed as their interleaved float32 views (n, h, 2k).
     """
     n, h, k2 = spec.shape
     k = k2 // 2
@@ -199,6 +201,9 @@ def ref_spectra(spec, imm, imm_norm, energy, box, box_det, flat, alpha, ay, ax, 
                     wts[j] = 0.5
                     ratio[j] = 1.0
             else:
+                if pbox.shape[0] == n:
+                    for j in range(k):
+                        pbox[b, i, j] = np.float32(t[j] * norm)
                 for j in range(k):
                     ps = max(np.float32(t[j] * norm) - s2, np.float32(0.0))
                     wts[j] = ps / (np.float32(2.0) * ps + s2 + np.float32(1e-30))
@@ -548,3 +553,131 @@ def newton(y, blk, rows_idx, ay, rows_w, ax, alpha, d, iterations, max_step, sto
             step[b, 1] = sx
             if abs(sy) < stop and abs(sx) < stop:
                 break
+
+
+@nb.njit(**_JIT)
+def box_power(spec, blk, box, out):
+    """out[q] (h, k) float32: the mean of |spec[blk[q]]|^2 over ``box`` x ``box`` bins (odd;
+    wrapped over rows, mirrored over columns, as :func:`ref_spectra`'s weights), spec passed
+    as its interleaved float32 view (n, h, 2k)."""
+    h, k2 = spec.shape[1], spec.shape[2]
+    k = k2 // 2
+    r = box // 2
+    pc = np.empty((h, k), np.float32)
+    cs = np.empty((k + 2 * r + 1, 4), np.float64)
+    mirror = np.empty(k + 2 * r, np.int64)
+    for q in range(k + 2 * r):
+        jj = q - r
+        mirror[q] = -jj if jj < 0 else (2 * (k - 1) - jj if jj >= k else jj)
+    tmp = np.empty((h, k), np.float64)
+    t = np.empty(k, np.float64)
+    norm = 1.0 / (box * box)
+    for q0 in range(blk.shape[0]):
+        sc = spec[blk[q0]]
+        for i in range(h):
+            for j in range(k):
+                pc[i, j] = sc[i, 2 * j] * sc[i, 2 * j] + sc[i, 2 * j + 1] * sc[i, 2 * j + 1]
+        for i0 in range(0, h, 4):  # box sums over columns from prefix sums, four rows at once
+            nr = min(4, h - i0)
+            a0 = 0.0
+            a1 = 0.0
+            a2 = 0.0
+            a3 = 0.0
+            cs[0, 0] = 0.0
+            cs[0, 1] = 0.0
+            cs[0, 2] = 0.0
+            cs[0, 3] = 0.0
+            for q in range(k + 2 * r):
+                jj = mirror[q]
+                a0 += pc[i0, jj]
+                if nr > 1:
+                    a1 += pc[i0 + 1, jj]
+                if nr > 2:
+                    a2 += pc[i0 + 2, jj]
+                if nr > 3:
+                    a3 += pc[i0 + 3, jj]
+                cs[q + 1, 0] = a0
+                cs[q + 1, 1] = a1
+                cs[q + 1, 2] = a2
+                cs[q + 1, 3] = a3
+            for o in range(nr):
+                for j in range(k):
+                    tmp[i0 + o, j] = cs[j + box, o] - cs[j, o]
+        for j in range(k):  # a running box over rows (wrapped)
+            t[j] = 0.0
+        for o in range(-r, r + 1):
+            for j in range(k):
+                t[j] += tmp[o % h, j]
+        for i in range(h):
+            for j in range(k):
+                out[q0, i, j] = np.float32(t[j] * norm)
+            ia = (i + r + 1) % h
+            ib = (i - r) % h
+            for j in range(k):
+                t[j] += tmp[ia, j] - tmp[ib, j]
+
+
+@nb.njit(**_JIT)
+def both_weights(y, spec, pbox, prow, cbox, crow, cscale, s2r, s2, shrink, alpha, ay, ax,
+                 rows, m):
+    """Knapp-Carter weights from both images' power: y = W_R conj(R) C (n, h, k) becomes
+    W conj(R) C in place, W = P / (2 P + s2) with P = max(shrink b - s2, 0), b the box mean
+    of (|R|^2 + |C|^2) / 2 and s2 (n,) the noise power per bin (``shrink`` = 1 - k se / b:
+    the power counted where it stands k standard errors se of the box mean above the noise).
+
+    spec (n, h, k): the C spectra; pbox (N, h, k) float32: the box means of |R|^2
+    (:func:`ref_spectra`, rows ``prow`` (n,)), whose weights W_R were made with the noise
+    power s2r (n,); cbox (M, h, k) float32: box means of |C|^2 (:func:`box_power`, rows
+    ``crow`` (n,), times ``cscale`` (n,): the ratio of the window energies where they were
+    made from an earlier window of the block). Only bins with W_R > 0 are kept (y = 0
+    elsewhere). Writes m (n, 3, 3), the CRLB sums of :func:`ref_spectra` for W with
+    (|R|^2 + |C|^2) / 2 in place of |R|^2 (|R|^2 = |y|^2 / (W_R^2 |C|^2)). Complex arrays
+    are passed as their interleaved float32 views.
+    """
+    n, h, k2 = spec.shape
+    k = k2 // 2
+    for b in range(n):
+        sc = spec[b]
+        sr2 = np.float32(s2r[b])
+        sn2 = np.float32(s2[b])
+        half = np.float32(0.5) * sn2
+        cf = np.float32(0.5 * cscale[b])
+        sk = np.float32(shrink)
+        pr = pbox[prow[b]]
+        pcb = cbox[crow[b]]
+        for a in range(3):
+            for c in range(3):
+                m[b, a, c] = 0.0
+        for i in range(h):
+            yr = y[b, i]
+            c0 = np.float32(0.0)
+            c1 = np.float32(0.0)
+            c2 = np.float32(0.0)
+            for j in range(k):
+                ps = max(pr[i, j] - sr2, np.float32(0.0))
+                wr = ps / (np.float32(2.0) * ps + sr2 + np.float32(1e-30))
+                pb = max(sk * (np.float32(0.5) * pr[i, j] + cf * pcb[i, j]) - sn2,
+                         np.float32(0.0))
+                wn = pb / (np.float32(2.0) * pb + sn2 + np.float32(1e-30))
+                g = wn / wr if wr > 0 else np.float32(0.0)
+                vr = yr[2 * j]
+                vi = yr[2 * j + 1]
+                pc = sc[i, 2 * j] * sc[i, 2 * j] + sc[i, 2 * j + 1] * sc[i, 2 * j + 1]
+                den = wr * wr * pc
+                rr = (vr * vr + vi * vi) / den if den > 0 else np.float32(0.0)
+                yr[2 * j] = g * vr
+                yr[2 * j + 1] = g * vi
+                we = g * wr
+                q = alpha[j] * we * we * (np.float32(0.5) * (rr + pc) - half)
+                c0 += q
+                c1 += q * ax[j]
+                c2 += q * ax[j] * ax[j]
+            if rows[i] != 0.0:
+                y1 = rows[i] * ay[i]
+                y2 = y1 * ay[i]
+                m[b, 0, 0] += rows[i] * c0
+                m[b, 0, 1] += rows[i] * c1
+                m[b, 0, 2] += rows[i] * c2
+                m[b, 1, 0] += y1 * c0
+                m[b, 1, 1] += y1 * c1
+                m[b, 2, 0] += y2 * c0

@@ -10,8 +10,9 @@ where alpha_k = 2 counts the conjugate half of the spectrum (1 on the k_x = 0 co
 Nyquist row and column carry no usable shift information and get 0). c, its gradient and its
 Hessian are sums over the spectrum, so Newton's method finds the peak to machine precision
 with exact band-limited (sinc) interpolation: no pixel-locking. The weights are Knapp-Carter's
-W_k = P_k / (2 P_k + s2) (P_k: the reference's smoothed texture power, s2: the noise power per
-bin), and the predicted error the sandwich H^-1 J H^-1; the compiled implementations are in
+W_k = P_k / (2 P_k + s2) (P_k: the smoothed texture power, of the reference, then in the
+common-content passes of both blocks; s2: the noise power per bin), and the predicted error
+the sandwich H^-1 J H^-1; the compiled implementations are in
 :mod:`correlator.kernels` (``newton``, ``ref_spectra``, ``crlb``).
 
 References

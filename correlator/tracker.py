@@ -103,7 +103,8 @@ class BlockTracker:
                                       predicted=(pred - step) if trusted else None)
         shift = np.where(inside[:, None], res.shift + step, np.nan)
         return type(res)(shift, res.valid & inside, np.where(inside, res.peak, 0.0),
-                           np.where(inside[:, None], res.crlb, np.inf))
+                           np.where(inside[:, None], res.crlb, np.inf),
+                           np.where(inside, res.p_false, 1.0))
 
     def _warped(self, frame, flow, sel, rng, index) -> ShiftResult:
         """:meth:`update` through a predicted flow (see there)."""
@@ -125,4 +126,5 @@ class BlockTracker:
         centre = 0.25 * (flow[:, lo, lo] + flow[:, lo, hi] + flow[:, hi, lo] + flow[:, hi, hi])
         shift = np.where(inside[:, None], res.shift + centre, np.nan)
         return type(res)(shift, res.valid & inside, np.where(inside, res.peak, 0.0),
-                           np.where(inside[:, None], res.crlb, np.inf))
+                           np.where(inside[:, None], res.crlb, np.inf),
+                           np.where(inside, res.p_false, 1.0))

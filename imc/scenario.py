@@ -583,7 +583,10 @@ class CorrelatorConfig(_Model):
         "com for optical, which allows com, parabolic, gaussian)")
     block_px: int = Field(64, ge=16, le=1024, description="block side, px")
     n_blocks: int = Field(4, ge=1, le=1024, description="number of tracked blocks")
-    psr_threshold: float = Field(7.0, ge=0.0, description="peak-to-sidelobe threshold")
+    false_valid_rate: float = Field(0.001, gt=0.0, lt=1.0, description="largest probability "
+                                    "that noise alone makes a valid result's peak")
+    psr_threshold: float | None = Field(None, ge=0.0, description="peak-to-sidelobe floor "
+                                        "(null: the correlator's safeguard, 5.5; 7 optical)")
     max_crlb_px: float = Field(0.15, gt=0.0, description="largest predicted 1-sigma error "
                                "of a valid measurement, px")
     rewindow: bool = Field(True, description="second pass with windows on the common content "

@@ -282,7 +282,7 @@ def speed_table(rng, repeats: int = 7, block_px: int = 128, n_track: int = 64,
     return rows
 
 
-def _photos(names) -> list[np.ndarray]:
+def photos(names) -> list[np.ndarray]:
     """The named skimage.data photographs as grey float arrays."""
     import skimage.data
 
@@ -297,7 +297,7 @@ def natural_tables(n: int, rng, block_px: int = 128) -> dict:
     """Coverage on low-contrast photographs (std 12 % of the mean, SNR 10) and accuracy over all
     pairs on the textured ones at SNR 1.6, ours and the peers on the same pairs."""
     low = [(im - im.mean()) / im.std() * 0.12 * MEAN_LEVEL + MEAN_LEVEL
-           for im in _photos(PHOTOS)]
+           for im in photos(PHOTOS)]
     ref, cur, d = image_pairs(low, n, block_px, rng, snr=10.0)
     est = {"imcsim (default)": ours(), **peers(1, hann=None)}
     cover = []
@@ -308,7 +308,7 @@ def natural_tables(n: int, rng, block_px: int = 128) -> dict:
                       "valid_pct": 100.0 * float(valid.mean()),
                       "valid_within_pct": 100.0 * float((valid & (err < 0.5)).mean()),
                       "false_valid_pct": 100.0 * float((valid & (err >= 0.5)).mean())})
-    ref, cur, d, clean = image_pairs(_photos(TEXTURED_PHOTOS), n, block_px, rng, snr=1.6,
+    ref, cur, d, clean = image_pairs(photos(TEXTURED_PHOTOS), n, block_px, rng, snr=1.6,
                                      return_clean=True)
     bound = float(np.sqrt(np.mean(crlb_px(clean, MEAN_LEVEL / 1.6) ** 2)))
     corr = float(np.sqrt(np.mean(correlation_bound_px(clean, MEAN_LEVEL / 1.6) ** 2)))

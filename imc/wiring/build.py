@@ -324,6 +324,7 @@ def correlator_options(sc: Scenario) -> CorrelatorOptions:
     try:
         opts = CorrelatorOptions(
             method=c.method, subpixel=c.subpixel, psr_threshold=c.psr_threshold,
+            false_valid_rate=c.false_valid_rate,
             max_crlb_px=c.max_crlb_px, rewindow=c.rewindow,
             trust_prediction_px=c.trust_prediction_px,
             optical=c.jtoc_model() if c.method == "optical" else None)

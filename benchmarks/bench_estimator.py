@@ -1,0 +1,220 @@
+"""The Fourier estimator's accuracy against its bounds, before and after a change (issue 25).
+
+Usage::
+
+    python benchmarks/bench_estimator.py [--base DIR] [--pairs N] [--noise-pairs M]
+        [--seed S] [--rounds R]
+
+Runs the measurements below in a subprocess for each tree (``--base DIR``: an export of the
+tree before the change, e.g. ``git archive wip-corr correlator imc | tar -x -C DIR``; and
+this tree), on the same draws (same seed, same test-image code), and prints one table:
+
+- strong and medium texture, 128^2, SNR 10: RMS over the valid pairs within 0.5 px against
+  the Cramer-Rao bound (:func:`crlb_px`) and the correlation bound
+  (:func:`correlation_bound_px`);
+- well-textured photographs (skimage ``grass``, ``gravel``) at their own contrast, SNR 1.6:
+  RMS over all pairs against the correlation bound;
+- low-contrast photographs (the peer benchmark's natural set, std 12 % of the mean, SNR 10):
+  valid and within 0.5 px, false-valid, and scikit-image's within 0.5 px on the same pairs;
+- weak texture at SNR 10 and medium texture at SNR 3 (128^2): valid and within 0.5 px,
+  false-valid, RMS over all pairs against the correlation bound;
+- predicted against actual error (RMS error over RMS ``crlb`` of the valid pairs) over SNR;
+- noise-only pairs flagged valid;
+- speed of the default path (``measure_shift`` on 256 pairs, one thread), timed in
+  alternating subprocesses of the two trees (``--rounds`` each; the best run of each: a
+  shared machine's neighbours only slow a run down).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parents[1]
+SNR_GRID = (1.0, 1.6, 3.0, 10.0, 30.0)
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x)))) if np.size(x) else float("nan")
+
+
+def accuracy(pairs: int, noise_pairs: int, seed: int) -> dict:
+    """Every accuracy figure of the tree on PYTHONPATH (see the module doc)."""
+    from correlator.bounds import correlation_bound_px, crlb_px
+    from correlator.core import measure_shift
+    from correlator.testimages import MEAN_LEVEL, image_pairs, texture_pairs
+    from imc.studies.correlator_peers import PHOTOS, TEXTURED_PHOTOS, peers, photos
+
+    rng = np.random.default_rng(seed)
+    out: dict = {}
+    for tex in ("strong", "medium"):
+        ref, cur, d, clean = texture_pairs(pairs, 128, rng, snr=10.0, texture=tex,
+                                           return_clean=True)
+        r = measure_shift(ref, cur)
+        err = r.shift - d
+        ok = r.valid & (np.abs(err).max(axis=1) < 0.5)
+        crlb = crlb_px(clean, MEAN_LEVEL / 10.0)
+        corr = correlation_bound_px(clean, MEAN_LEVEL / 10.0)
+        out[f"{tex}10"] = {"rms": _rms(err[ok]), "crlb": _rms(crlb[ok]), "corr": _rms(corr[ok]),
+                           "valid_pct": 100.0 * float(ok.mean())}
+    ref, cur, d, clean = image_pairs(photos(TEXTURED_PHOTOS), pairs, 128, rng, snr=1.6,
+                                     return_clean=True)
+    r = measure_shift(ref, cur)
+    err = r.shift - d
+    out["photo16"] = {"rms_all": _rms(err), "corr": _rms(correlation_bound_px(clean, 62.5)),
+                      "crlb": _rms(crlb_px(clean, 62.5)),
+                      "outliers": int((np.abs(err).max(axis=1) >= 0.5).sum())}
+    low = [(im - im.mean()) / im.std() * 0.12 * MEAN_LEVEL + MEAN_LEVEL
+           for im in photos(PHOTOS)]
+    n_low = 3 * pairs
+    ref, cur, d = image_pairs(low, n_low, 128, rng, snr=10.0)
+    r = measure_shift(ref, cur)
+    bad = np.abs(r.shift - d).max(axis=1) >= 0.5
+    sk = [fn for name, fn in peers(1, hann=None).items() if name.startswith("scikit")]
+    sk_within = float("nan")
+    if sk:
+        sk_within = 100.0 * float((np.abs(sk[0](ref, cur)[0] - d).max(axis=1) < 0.5).mean())
+    out["lowcontrast"] = {"pairs": n_low,
+                          "valid_within_pct": 100.0 * float((r.valid & ~bad).mean()),
+                          "false_valid_pct": 100.0 * float((r.valid & bad).mean()),
+                          "skimage_within_pct": sk_within}
+    for key, tex, snr, n in (("weak10", "weak", 10.0, 3 * pairs),
+                             ("medium3", "medium", 3.0, pairs)):
+        ref, cur, d, clean = texture_pairs(n, 128, rng, snr=snr, texture=tex,
+                                           return_clean=True)
+        r = measure_shift(ref, cur)
+        err = r.shift - d
+        bad = np.abs(err).max(axis=1) >= 0.5
+        out[key] = {"pairs": n, "valid_within_pct": 100.0 * float((r.valid & ~bad).mean()),
+                    "false_valid_pct": 100.0 * float((r.valid & bad).mean()),
+                    "rms_all": _rms(err),
+                    "corr": _rms(correlation_bound_px(clean, MEAN_LEVEL / snr))}
+    ratio = {}
+    for tex in ("strong", "medium"):
+        for snr in SNR_GRID:
+            ref, cur, d = texture_pairs(pairs // 2, 128, rng, snr=snr, texture=tex)
+            r = measure_shift(ref, cur)
+            err = r.shift - d
+            ok = r.valid & (np.abs(err).max(axis=1) < 0.5)
+            ratio[f"{tex} {snr:g}"] = _rms(err[ok]) / _rms(r.crlb[ok]) if ok.any() else None
+    out["pred_ratio"] = ratio
+    valid = 0
+    for _ in range(noise_pairs // 1000):
+        a = rng.normal(MEAN_LEVEL, 10.0, (1000, 128, 128))
+        b = rng.normal(MEAN_LEVEL, 10.0, (1000, 128, 128))
+        valid += int(measure_shift(a, b).valid.sum())
+    out["noise_only"] = {"pairs": 1000 * (noise_pairs // 1000), "valid": valid}
+    import correlator
+
+    out["tree"] = str(Path(correlator.__file__).parent)
+    return out
+
+
+def speed(n: int = 256, repeats: int = 5) -> float:
+    """Best pairs/s of ``measure_shift`` (default options, one thread) on n pairs."""
+    from correlator.core import measure_shift
+    from correlator.testimages import texture_pairs
+
+    ref, cur, _ = texture_pairs(n, 128, np.random.default_rng(7), snr=10.0)
+    measure_shift(ref[:8], cur[:8], workers=1)
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        measure_shift(ref, cur, workers=1)
+        best = min(best, time.perf_counter() - t0)
+    return n / best
+
+
+def _sub(tree: Path, *args: str) -> dict:
+    env = {**os.environ, "PYTHONPATH": str(tree), "OMP_NUM_THREADS": "1"}
+    res = subprocess.run([sys.executable, __file__, "--child", *args], env=env, check=True,
+                         capture_output=True, text=True)
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def _f(x, fmt: str = ".4f") -> str:
+    return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else format(x, fmt)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--base", type=Path, help="the tree before the change (an export)")
+    ap.add_argument("--pairs", type=int, default=400)
+    ap.add_argument("--noise-pairs", type=int, default=10000)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--speed-only", action="store_true", help="only the speed rounds")
+    ap.add_argument("--child", nargs="*")
+    a = ap.parse_args()
+    if a.child is not None:
+        res = (accuracy(a.pairs, a.noise_pairs, a.seed) if a.child[:1] == ["accuracy"]
+               else {"pairs_per_s": speed()})
+        print(json.dumps(res))
+        return
+    trees = {"after": HERE} if a.base is None else {"before": a.base, "after": HERE}
+    args = ("accuracy", "--pairs", str(a.pairs), "--noise-pairs", str(a.noise_pairs),
+            "--seed", str(a.seed))
+    rates = {k: [] for k in trees}
+    for _ in range(a.rounds):
+        for k, t in trees.items():
+            rates[k].append(_sub(t, "speed")["pairs_per_s"])
+    names = list(trees)
+    if a.speed_only:
+        print(" ".join(f"{k}: best {max(rates[k]):.0f} pairs/s, median "
+                       f"{np.median(rates[k]):.0f}" for k in names) + f" (rounds: {rates})")
+        if len(names) == 2:
+            print(f"speed ratio after/before: best {max(rates['after']) / max(rates['before']):.3f}"
+                  f", median {np.median(rates['after']) / np.median(rates['before']):.3f}")
+        return
+    acc = {k: _sub(t, *args) for k, t in trees.items()}
+    print("| figure | " + " | ".join(names) + " |")
+    print("|---|" + "---|" * len(names))
+
+    def row(label, fn):
+        print(f"| {label} | " + " | ".join(fn(acc[k]) for k in names) + " |")
+
+    for tex in ("strong", "medium"):
+        row(f"{tex} SNR 10: RMS (px) / RMS/CRLB / RMS/corr. bound",
+            lambda r, t=tex: f"{_f(r[t + '10']['rms'])} / "
+                             f"{_f(r[t + '10']['rms'] / r[t + '10']['crlb'], '.3f')} / "
+                             f"{_f(r[t + '10']['rms'] / r[t + '10']['corr'], '.3f')}")
+    row("grass+gravel SNR 1.6: RMS all pairs (px) / over corr. bound / errors >= 0.5 px",
+        lambda r: f"{_f(r['photo16']['rms_all'])} / "
+                  f"{_f(r['photo16']['rms_all'] / r['photo16']['corr'], '.3f')} / "
+                  f"{r['photo16']['outliers']}")
+    row("low-contrast photos SNR 10: valid & within 0.5 px / false-valid / scikit-image within",
+        lambda r: f"{_f(r['lowcontrast']['valid_within_pct'], '.1f')} % / "
+                  f"{_f(r['lowcontrast']['false_valid_pct'], '.2f')} % / "
+                  f"{_f(r['lowcontrast']['skimage_within_pct'], '.1f')} %")
+    for key, label in (("weak10", "weak texture SNR 10"), ("medium3", "medium texture SNR 3")):
+        row(f"{label}: valid & within 0.5 px / false-valid / RMS all pairs over corr. bound",
+            lambda r, k=key: f"{_f(r[k]['valid_within_pct'], '.1f')} % / "
+                             f"{_f(r[k]['false_valid_pct'], '.2f')} % / "
+                             f"{_f(r[k]['rms_all'] / r[k]['corr'], '.3f')}")
+    for key in acc[names[0]]["pred_ratio"]:
+        row(f"actual / predicted error, {key}", lambda r, k=key: _f(r["pred_ratio"][k], ".3f"))
+    row("noise-only pairs flagged valid",
+        lambda r: f"{r['noise_only']['valid']} of {r['noise_only']['pairs']}")
+    print("| default path, one thread, pairs/s (best of rounds) | "
+          + " | ".join(f"{max(rates[k]):.0f}" for k in names) + " |")
+    if len(names) == 2:
+        print(f"speed ratio after/before: best {max(rates['after']) / max(rates['before']):.3f}"
+              f", median {np.median(rates['after']) / np.median(rates['before']):.3f} "
+              f"(rounds: {rates})")
+    ref = acc[names[0]]
+    print("trees: " + ", ".join(f"{k} {acc[k]['tree']}" for k in names))
+    print(f"bounds: strong 10 CRLB {ref['strong10']['crlb']:.4f}, "
+          f"corr {ref['strong10']['corr']:.4f}; "
+          f"medium 10 CRLB {ref['medium10']['crlb']:.4f}, corr {ref['medium10']['corr']:.4f}; "
+          f"photos 1.6 CRLB {ref['photo16']['crlb']:.4f}, corr {ref['photo16']['corr']:.4f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -99,6 +99,34 @@ def prep_blocks(blocks, blk, wy, wx, weighted, out, stats):
 
 
 @nb.njit(**_JIT)
+def _column_prefix_sums(p, mirror, i0, nr, cs):
+    """cs[q + 1, o] = p[i0 + o, mirror[0]] + ... + p[i0 + o, mirror[q]] for the nr (<= 4)
+    rows from i0 (cs[0] = 0): prefix sums over the mirrored columns, the rows as four
+    independent addition chains; box sums are differences of them."""
+    a0 = 0.0
+    a1 = 0.0
+    a2 = 0.0
+    a3 = 0.0
+    cs[0, 0] = 0.0
+    cs[0, 1] = 0.0
+    cs[0, 2] = 0.0
+    cs[0, 3] = 0.0
+    for q in range(mirror.shape[0]):
+        jj = mirror[q]
+        a0 += p[i0, jj]
+        if nr > 1:
+            a1 += p[i0 + 1, jj]
+        if nr > 2:
+            a2 += p[i0 + 2, jj]
+        if nr > 3:
+            a3 += p[i0 + 3, jj]
+        cs[q + 1, 0] = a0
+        cs[q + 1, 1] = a1
+        cs[q + 1, 2] = a2
+        cs[q + 1, 3] = a3
+
+
+@nb.njit(**_JIT)
 def ref_spectra(spec, imm, imm_norm, energy, box, box_det, flat, alpha, ay, ax, rows,
                 outer_from, band_rows, wconj, fw, bw, m, noise, pbox):
     """Per reference block: noise variance, Knapp-Carter weights W, W conj(R), gradient sums.
@@ -157,27 +185,7 @@ def ref_spectra(spec, imm, imm_norm, energy, box, box_det, flat, alpha, ay, ax, 
             # four rows at a time (four independent addition chains) ...
             for i0 in range(0, h, 4):
                 nr = min(4, h - i0)
-                a0 = 0.0
-                a1 = 0.0
-                a2 = 0.0
-                a3 = 0.0
-                cs[0, 0] = 0.0
-                cs[0, 1] = 0.0
-                cs[0, 2] = 0.0
-                cs[0, 3] = 0.0
-                for q in range(k + 2 * r):
-                    jj = mirror[q]
-                    a0 += p[i0, jj]
-                    if nr > 1:
-                        a1 += p[i0 + 1, jj]
-                    if nr > 2:
-                        a2 += p[i0 + 2, jj]
-                    if nr > 3:
-                        a3 += p[i0 + 3, jj]
-                    cs[q + 1, 0] = a0
-                    cs[q + 1, 1] = a1
-                    cs[q + 1, 2] = a2
-                    cs[q + 1, 3] = a3
+                _column_prefix_sums(p, mirror, i0, nr, cs)
                 for o in range(nr):
                     for j in range(k):
                         tmp[i0 + o, j] = cs[j + box, o] - cs[j, o]
@@ -579,27 +587,7 @@ def box_power(spec, blk, box, out):
                 pc[i, j] = sc[i, 2 * j] * sc[i, 2 * j] + sc[i, 2 * j + 1] * sc[i, 2 * j + 1]
         for i0 in range(0, h, 4):  # box sums over columns from prefix sums, four rows at once
             nr = min(4, h - i0)
-            a0 = 0.0
-            a1 = 0.0
-            a2 = 0.0
-            a3 = 0.0
-            cs[0, 0] = 0.0
-            cs[0, 1] = 0.0
-            cs[0, 2] = 0.0
-            cs[0, 3] = 0.0
-            for q in range(k + 2 * r):
-                jj = mirror[q]
-                a0 += pc[i0, jj]
-                if nr > 1:
-                    a1 += pc[i0 + 1, jj]
-                if nr > 2:
-                    a2 += pc[i0 + 2, jj]
-                if nr > 3:
-                    a3 += pc[i0 + 3, jj]
-                cs[q + 1, 0] = a0
-                cs[q + 1, 1] = a1
-                cs[q + 1, 2] = a2
-                cs[q + 1, 3] = a3
+            _column_prefix_sums(pc, mirror, i0, nr, cs)
             for o in range(nr):
                 for j in range(k):
                     tmp[i0 + o, j] = cs[j + box, o] - cs[j, o]

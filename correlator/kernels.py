@@ -99,6 +99,20 @@ def prep_blocks(blocks, blk, wy, wx, weighted, out, stats):
 
 
 @nb.njit(**_JIT)
+def _add_row_moments(m, b, row_w, ay_i, c0, c1, c2):
+    """Add one spectrum row's column moments (c0, c1, c2: sums of q, q ax, q ax^2) to block
+    b's moment matrix m[b] (the CRLB's sums), weighted by the row's weight and its ay."""
+    y1 = row_w * ay_i
+    y2 = y1 * ay_i
+    m[b, 0, 0] += row_w * c0
+    m[b, 0, 1] += row_w * c1
+    m[b, 0, 2] += row_w * c2
+    m[b, 1, 0] += y1 * c0
+    m[b, 1, 1] += y1 * c1
+    m[b, 2, 0] += y2 * c0
+
+
+@nb.njit(**_JIT)
 def _column_prefix_sums(p, mirror, i0, nr, cs):
     """cs[q + 1, o] = p[i0 + o, mirror[0]] + ... + p[i0 + o, mirror[q]] for the nr (<= 4)
     rows from i0 (cs[0] = 0): prefix sums over the mirrored columns, the rows as four
@@ -245,14 +259,7 @@ def ref_spectra(spec, imm, imm_norm, energy, box, box_det, flat, alpha, ay, ax, 
                 c1 += q * ax[j]
                 c2 += q * ax[j] * ax[j]
             if rows[i] != 0.0:
-                y1 = rows[i] * ay[i]
-                y2 = y1 * ay[i]
-                m[b, 0, 0] += rows[i] * c0
-                m[b, 0, 1] += rows[i] * c1
-                m[b, 0, 2] += rows[i] * c2
-                m[b, 1, 0] += y1 * c0
-                m[b, 1, 1] += y1 * c1
-                m[b, 2, 0] += y2 * c0
+                _add_row_moments(m, b, rows[i], ay[i], c0, c1, c2)
 
 
 @nb.njit(**_JIT)
@@ -661,11 +668,4 @@ def both_weights(y, spec, pbox, prow, cbox, crow, cscale, s2r, s2, shrink, alpha
                 c1 += q * ax[j]
                 c2 += q * ax[j] * ax[j]
             if rows[i] != 0.0:
-                y1 = rows[i] * ay[i]
-                y2 = y1 * ay[i]
-                m[b, 0, 0] += rows[i] * c0
-                m[b, 0, 1] += rows[i] * c1
-                m[b, 0, 2] += rows[i] * c2
-                m[b, 1, 0] += y1 * c0
-                m[b, 1, 1] += y1 * c1
-                m[b, 2, 0] += y2 * c0
+                _add_row_moments(m, b, rows[i], ay[i], c0, c1, c2)

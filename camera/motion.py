@@ -106,20 +106,32 @@ class CameraModel:
         return self.image_velocity_px_s(ground, np.array([t_s]), nominal)[0]
 
     def ground_points(
-        self, pixel_rc: np.ndarray, t_s: float, height_fn: HeightFn, iterations: int = 8
+        self, pixel_rc: np.ndarray, t_s: float | np.ndarray, height_fn: HeightFn,
+        iterations: int = 8
     ) -> np.ndarray:
-        """ENU points (..., 3) seen at pixels (..., 2) at time t_s on the surface h(E, N).
+        """ENU points (..., 3) seen at pixels (..., 2) at time t_s on the surface h(E, N);
+        for times t_s (T,), the points (T, ..., 3) at each of them.
 
         Intersects each pixel's ray with the terrain by fixed-point iteration on the height
         (rays are within a degree of vertical, so it converges to < 1 mm in a few steps).
         """
-        pose = self.pose(np.asarray(t_s, dtype=np.float64))
-        d = np.einsum("ij,...j->...i", pose.enu_from_cam, self.focal_plane.cam_direction(pixel_rc))
-        c = pose.position_m
+        t = np.asarray(t_s, dtype=np.float64)
+        if t.ndim > 1:
+            raise ValueError(f"t_s must be a time or a 1-D array of times, got shape {t.shape}")
+        pose = self.pose(t)
+        dirs = self.focal_plane.cam_direction(pixel_rc)
+        if t.ndim == 0:
+            d = np.einsum("ij,...j->...i", pose.enu_from_cam, dirs)
+            c = pose.position_m
+        else:
+            flat = dirs.reshape(-1, 3)
+            d = np.einsum("tij,pj->tpi", pose.enu_from_cam, flat).reshape(
+                len(t), *dirs.shape[:-1], 3)
+            c = pose.position_m.reshape(len(t), *([1] * (dirs.ndim - 1)), 3)
         h = np.zeros(d.shape[:-1])
         for _ in range(iterations):
-            s = (h - c[2]) / d[..., 2]
+            s = (h - c[..., 2]) / d[..., 2]
             p = c + s[..., None] * d
             h = height_fn(p[..., 0], p[..., 1])
-        s = (h - c[2]) / d[..., 2]
+        s = (h - c[..., 2]) / d[..., 2]
         return c + s[..., None] * d

@@ -16,7 +16,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.fft as sfft
 
 
 @dataclass(frozen=True)
@@ -82,6 +81,8 @@ class Optics:
         The rendered pixel values are area integrals (the detector footprint); this adds the
         telescope's blur on top, in the 2D spectrum of the sampled image.
         """
+        import scipy.fft as sfft
+
         img = np.asarray(image, dtype=np.float64)
         if self.is_identity:
             return img
@@ -96,6 +97,8 @@ class Optics:
 
         The inverse transform of :meth:`mtf` on the oversampled grid.
         """
+        import scipy.fft as sfft
+
         n = size_px * oversample
         f = np.hypot(sfft.fftfreq(n)[:, None], sfft.fftfreq(n)[None, :]) * oversample
         p = np.real(sfft.fftshift(sfft.ifft2(self.mtf(f))))

@@ -1,8 +1,8 @@
 """Image-motion measurement: block correlation (JTC, cross, phase), sub-pixel, tracking.
 
 The names below are loaded on first use (PEP 562): importing a light submodule
-(:mod:`correlator.optical`, :mod:`correlator.timing`) does not import the FFT back-end,
-pyfftw or the compiled kernels that :mod:`correlator.core` needs.
+(:mod:`correlator.options`, :mod:`correlator.optical`, :mod:`correlator.timing`) does not
+import the FFT back-end, pyfftw or the compiled kernels that :mod:`correlator.core` needs.
 """
 
 from __future__ import annotations
@@ -11,22 +11,16 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from correlator.core import (
-        METHODS,
-        SUBPIXEL,
-        Correlator,
-        CorrelatorOptions,
-        ShiftResult,
-        measure_shift,
-    )
+    from correlator.core import Correlator, ShiftResult, measure_shift
+    from correlator.options import METHODS, SUBPIXEL, CorrelatorOptions
     from correlator.tracker import BlockTracker, block_grid
 
 #: each public name and the submodule that defines it
 _LAZY = {
-    "METHODS": "correlator.core",
-    "SUBPIXEL": "correlator.core",
+    "METHODS": "correlator.options",
+    "SUBPIXEL": "correlator.options",
     "Correlator": "correlator.core",
-    "CorrelatorOptions": "correlator.core",
+    "CorrelatorOptions": "correlator.options",
     "ShiftResult": "correlator.core",
     "measure_shift": "correlator.core",
     "BlockTracker": "correlator.tracker",

@@ -801,8 +801,10 @@ class MetricsConfig(_Model):
     blur_images: bool = Field(False, description="frame imager: render its worst exposure "
                               "(scene patch and a slanted edge; static, open and closed loop) "
                               "and measure the edge MTF (main_imager.png)")
-    blur_spp: int = Field(64, ge=1, le=4096, description="samples per pixel of those renders "
-                          "(a square number: the stratified sampler rounds to one)")
+    blur_spp: int = Field(64, ge=1, le=4096, description="samples per pixel of the slanted-edge "
+                          "renders, which are measured (a square number: the stratified "
+                          "sampler rounds to one); the scene patches, only shown, take at "
+                          "most 16")
 
 
 #: the top-level keys of metrics.json (imc/outputs/report.py summarize and imc/pipeline.py); an

@@ -31,8 +31,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.fft as sfft
-from scipy import ndimage
 
 from scene import SCENE_CLASSES
 from scene.terrain import Terrain, fractal_noise, procedural_terrain
@@ -128,6 +126,8 @@ def cloud_layer(size_m: float, cell_m: float, cover: float, base_m: float,
                 rng: np.random.Generator, thickness_m: float = 100.0,
                 albedo: float = 0.8) -> CloudLayer:
     """Seeded fractal cumulus field covering ``cover`` of a square of side ``size_m``."""
+    from scipy import ndimage
+
     if not 0.0 <= cover < 1.0:
         raise ValueError(f"cloud cover must be within [0, 1), got {cover}")
     m = int(round(size_m / cell_m)) + 1
@@ -153,6 +153,8 @@ def cloud_layer(size_m: float, cell_m: float, cover: float, base_m: float,
 
 def _lowpass(shape: tuple[int, int], sigma_texels: float, rng: np.random.Generator) -> np.ndarray:
     """Unit-std Gaussian-filtered white noise with correlation length ~sigma_texels."""
+    import scipy.fft as sfft
+
     spec = sfft.rfft2(rng.standard_normal(shape), workers=-1)
     fy = sfft.fftfreq(shape[0])[:, None]
     fx = sfft.rfftfreq(shape[1])[None, :]
@@ -221,6 +223,8 @@ def _texels(size_m: float, texel_m: float) -> int:
 def urban(size_m: float, texel_m: float, dem_spacing_m: float, relief_rms_m: float,
           rng: np.random.Generator) -> Terrain:
     """Street grid, lots and buildings; building heights go into the DEM (their shadows)."""
+    from scipy import ndimage
+
     n = _texels(size_m, texel_m)
     ids_y, edge_y, ny = _grid_axis(n, texel_m, rng)
     ids_x, edge_x, nx = _grid_axis(n, texel_m, rng)
@@ -287,6 +291,8 @@ def rural(size_m: float, texel_m: float, dem_spacing_m: float, relief_rms_m: flo
 def mountain(size_m: float, texel_m: float, dem_spacing_m: float, relief_rms_m: float,
              rng: np.random.Generator, snow_fraction: float = 0.4) -> Terrain:
     """Ridged relief; rock / vegetation texture below a noisy snow line, smooth snow above."""
+    from scipy import ndimage
+
     n = _texels(size_m, texel_m)
     m = _dem_nodes(size_m, dem_spacing_m)
     ridged = 1.0 - np.abs(fractal_noise((m, m), 4.4, rng))
@@ -310,6 +316,9 @@ def mountain(size_m: float, texel_m: float, dem_spacing_m: float, relief_rms_m: 
 def waves(size_m: float, texel_m: float, dem_spacing_m: float, relief_rms_m: float,
           rng: np.random.Generator, sun_azimuth_deg: float = 140.0) -> Terrain:
     """Dark water brightened on the sun-facing slopes of a directional wind sea."""
+    import scipy.fft as sfft
+    from scipy import ndimage
+
     n = _texels(size_m, texel_m)
     wavelength_m = rng.uniform(20.0, 45.0)
     direction = rng.uniform(0.0, 2 * np.pi)

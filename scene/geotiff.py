@@ -32,7 +32,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy import ndimage
 
 from orbit.frames import LocalFrame, ecef_to_geodetic, geodetic_to_ecef
 from scene.terrain import Terrain
@@ -372,6 +371,8 @@ def _resampled(ortho: GeoRaster, place: Placement, texel_m: float, step: int,
                dem_spacing_m: float, what: str):
     """The orthophoto on a north-up ENU grid of square texels inside its footprint:
     (albedo (nh, nw), nh, nw, 0, 0)."""
+    from scipy import ndimage
+
     h, w = ortho.shape
     jac = place.jacobian((h - 1) / 2.0, (w - 1) / 2.0)
     a0, b0 = w * np.hypot(*jac[:, 0]) / 2.0, h * np.hypot(*jac[:, 1]) / 2.0
@@ -409,6 +410,8 @@ def _resampled(ortho: GeoRaster, place: Placement, texel_m: float, step: int,
 
 def _dem_at(dem_path, place: Placement, east: np.ndarray, north: np.ndarray) -> np.ndarray:
     """DEM heights (len(north), len(east)) m at ENU nodes, bilinear, any CRS."""
+    from scipy import ndimage
+
     what = "scene.geotiff.dem"
     dem = read_geotiff(dem_path, what)
     dplace = Placement(dem, place.frame.lat_deg, place.frame.lon_deg, what)

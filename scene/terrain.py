@@ -10,8 +10,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.fft as sfft
-from scipy.spatial import cKDTree
 
 
 @dataclass(frozen=True)
@@ -76,6 +74,8 @@ def fractal_noise(
     shape: tuple[int, int], beta: float, rng: np.random.Generator, cutoff_cycles: float = 1.0
 ) -> np.ndarray:
     """Zero-mean, unit-std Gaussian noise with power spectrum ~ 1 / f**beta (f > cutoff)."""
+    import scipy.fft as sfft
+
     white = rng.standard_normal(shape)
     spec = sfft.rfft2(white, workers=-1)
     fy = sfft.fftfreq(shape[0])[:, None] * shape[0]
@@ -100,6 +100,8 @@ def procedural_terrain(
     texture (power spectrum ~ f^-2.2, natural-image-like) and a few straight roads; the DEM is a
     smooth fractal surface with the requested RMS relief.
     """
+    from scipy.spatial import cKDTree
+
     n = int(round(size_m / texel_m))
     m = int(round(size_m / dem_spacing_m)) + 1
     if n < 16 or m < 3:

@@ -49,6 +49,18 @@ def _plt():
     return plt
 
 
+def sparse_log_ticks(*axes) -> None:
+    """Minor ticks at 2 and 5 of each decade, unlabelled, on the log axes of ``axes``
+    (matplotlib's default of 8 a decade makes a log-log figure cost ~0.3 s more to draw)."""
+    from matplotlib.ticker import LogLocator, NullFormatter
+
+    for ax in axes:
+        for axis, scale in ((ax.xaxis, ax.get_xscale()), (ax.yaxis, ax.get_yscale())):
+            if scale == "log":
+                axis.set_minor_locator(LogLocator(10.0, subs=(2.0, 5.0)))
+                axis.set_minor_formatter(NullFormatter())
+
+
 def save(fig, path: Path) -> Path:
     """Save a matplotlib figure as PNG atomically and close it."""
     atomic_write(Path(path), lambda p: fig.savefig(p, format="png"))
@@ -208,6 +220,7 @@ def fig_spectrum(run_dir: Path, s: dict) -> Path:
     a2.set_title("the loop's rejection")
     a2.grid(True, which="both", alpha=0.3)
     a2.legend(fontsize=8)
+    sparse_log_ticks(a1, a2)
     fig.tight_layout()
     return save(fig, Path(run_dir) / "fig_spectrum.png")
 

@@ -9,6 +9,7 @@ import numpy as np
 
 from compensation.analytic import LoopModel, measured_rejection
 from imc.io import atomic_write, write_json
+from imc.outputs.figures import sparse_log_ticks
 
 
 def delay_s(model: LoopModel) -> float:
@@ -66,6 +67,7 @@ def loop_study(model: LoopModel, out_dir: Path, n_sweep: int = 12, amplitude_px:
     ax.set_title(f"{title}: rejection, {rate:g} measurements/s".strip(": "))
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
+    sparse_log_ticks(ax)
     png = out_dir / "loop.png"
 
     def save(p: Path) -> None:

@@ -18,7 +18,7 @@ import numpy as np
 
 from compensation.loop import Trajectory
 from compensation.metrics import NYQUIST, motion_mtf
-from ground.quality import edge_mtf, value_at
+from ground.quality import ESF_HALF_PX, edge_mtf, value_at
 from imc.io import atomic_write, write_npz
 from imc.wiring.build import Models
 from imc.wiring.truth import Truth
@@ -30,6 +30,14 @@ PSF_MIN_HALF_PX = 0.5
 PSF_MAX_BINS = 201
 #: frequencies of the 2-D MTF, cycles/px (0 .. 1, Nyquist at the middle)
 MTF_FREQS = np.linspace(-1.0, 1.0, 41)
+#: samples per pixel of the scene patches, which are only shown (main_imager.png), at most
+PICTURE_SPP = 16
+#: edge_mtf's margin (px) cut on every side of the edge's image
+EDGE_MARGIN_PX = 8
+#: the slanted edge's angle to the columns (deg) and the slack (px) each side of the rows
+#: the edge spread function reads, for the motion during the exposure
+EDGE_ANGLE_DEG = 5.0
+EDGE_SLACK_PX = 8
 
 
 def psf_image(r_px: np.ndarray, half_px: float, bin_px: float = PSF_BIN_PX) -> np.ndarray:
@@ -88,29 +96,45 @@ def write_blur_npz(path: Path, truth: Truth, trajectory: Trajectory,
 # ------------------------------------------------------------------------ rendered patches
 
 
-def edge_terrain(m: Models, angle_deg: float = 5.0, albedo=(0.15, 0.6), size_m: float = 320.0,
-                 texel_m: float = 0.1):
-    """A flat tile with a straight albedo edge through the scene centre, at ``angle_deg`` to
-    the main imager's columns (so its normal runs nearly along the rows)."""
+def _flat(east: np.ndarray, north: np.ndarray) -> np.ndarray:
+    """The edge tile's height (m): 0 everywhere."""
+    return np.zeros(np.broadcast(east, north).shape)
+
+
+def edge_terrain(m: Models, angle_deg: float = EDGE_ANGLE_DEG, albedo=(0.15, 0.6),
+                 size_m: float = 320.0, texel_m: float = 0.1, t_s: float | None = None):
+    """A flat tile with a straight albedo edge at ``angle_deg`` to the main imager's columns
+    (so its normal runs nearly along the rows), through the ground point seen at the imager's
+    centre at ``t_s`` (None: through the scene centre)."""
     from scene.terrain import Terrain
 
     cam = m.main_camera
     c = cam.focal_plane.center_px
-    g = cam.ground_points(np.array([c + [0.0, -50.0], c + [0.0, 50.0]]), 0.0,
-                          m.terrain.height_at)
+    t_ref = 0.0 if t_s is None else float(t_s)
+    g = cam.ground_points(np.array([c + [0.0, -50.0], c + [0.0, 50.0]]), t_ref, _flat)
     along = (g[1] - g[0])[:2]
     along /= np.linalg.norm(along)
     a = np.deg2rad(angle_deg)
     rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
     normal = rot @ np.array([-along[1], along[0]])
+    through = np.zeros(2) if t_s is None else cam.ground_points(c, t_ref, _flat)[:2]
     n = int(round(size_m / texel_m))
     xs = (np.arange(n) + 0.5) * texel_m - size_m / 2
     # the signed distance east * normal_e + north * normal_n on the (north, east) grid, row 0
     # the north edge, as an outer sum (the same sums as on two meshgrids, without them)
-    d = np.add.outer(-xs * normal[1], xs * normal[0])
+    d = np.add.outer(-xs * normal[1], xs * normal[0]) - float(through @ normal)
     alb = np.where(d > 0, albedo[1], albedo[0]).astype(np.float64, copy=False)
     spacing = size_m / 40.0
     return Terrain(alb, texel_m, np.zeros((41, 41)), spacing)
+
+
+def edge_rows(cols: int, angle_deg: float = EDGE_ANGLE_DEG) -> int:
+    """Film rows of the edge render, ``cols`` wide: the edge's run across the width
+    (cols tan angle), the ESF's +-ESF_HALF_PX, edge_mtf's margin each side and
+    :data:`EDGE_SLACK_PX`, even; at most ``cols``."""
+    run = cols * np.tan(np.deg2rad(angle_deg))
+    rows = int(np.ceil(run + 2 * (ESF_HALF_PX + EDGE_MARGIN_PX + EDGE_SLACK_PX)))
+    return min(cols, rows + rows % 2)
 
 
 def render_patch(m: Models, renderer, t0_s: float, t1_s: float,
@@ -152,15 +176,22 @@ def main_imager_study(m: Models, trajectory: Trajectory, truth: Truth, out: Path
     t0 = figures["worst_window_start_s"]
     t1 = t0 + truth.window_s
     sun = Sun(*m.sun_deg)
-    scene_r = Renderer(m.terrain, sun, size_px, size_px, spp=spp, clouds=m.clouds)
+    # the scene patches are pictures only (main_imager.png): PICTURE_SPP samples a pixel at
+    # most; the edges, which are measured, get spp
+    scene_r = Renderer(m.terrain, sun, size_px, size_px, spp=min(spp, PICTURE_SPP),
+                       clouds=m.clouds)
     patches = {name: render_patch(m, scene_r, t0, t1, stage, moving)
                for name, stage, moving in (("static", None, False), ("open loop", None, True),
                                            ("closed loop", trajectory, True))}
-    edge_r = Renderer(edge_terrain(m), sun, size_px, size_px, spp=spp)
+    # the edge's film: the full width, and the rows that the ISO 12233 binning reads (the
+    # edge's slant across the width, the ESF's half-window, the margin, and slack for the
+    # motion); the pixels beyond are outside the ESF's window
+    edge_r = Renderer(edge_terrain(m, t_s=0.5 * (t0 + t1)), sun, edge_rows(size_px),
+                      size_px, spp=spp)
     edges = {name: render_patch(m, edge_r, t0, t1, stage, moving)
              for name, stage, moving in (("static", None, False), ("open loop", None, True),
                                          ("closed loop", trajectory, True))}
-    curves = {k: edge_mtf(v) for k, v in edges.items()}
+    curves = {k: edge_mtf(v, margin=EDGE_MARGIN_PX) for k, v in edges.items()}
     f_static, mtf_static = curves["static"]
     sel = truth.window == w
     result = {"window_start_s": t0, "window_s": truth.window_s, "spp": spp}

@@ -241,7 +241,8 @@ def estimate_run(sc: Scenario) -> RunEstimate:
                           + 24.0 * (t.rows + 2 * reach) * (t.cols + 2 * reach))
     if sc.metrics.blur_images and sc.camera.main_imager.kind == "frame":
         # imc.wiring.blur.main_imager_study: Mitsuba (whatever the plant), the tile's texture, two
-        # BLUR_PATCH_PX films at metrics.blur_spp and the figure
+        # BLUR_PATCH_PX films at metrics.blur_spp at most (the edge's film has fewer rows, the
+        # scene patch's fewer samples) and the figure
         base = RENDER_BASE_BYTES
         parts["blur images"] = (BLUR_IMAGES_BYTES + 8.0 * texels
                                 + 2 * BLUR_PATCH_PX**2 * (24.0 + 4.0 * sc.metrics.blur_spp))

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -19,6 +18,7 @@ from camera.optics import Optics
 from camera.sensor import Radiometry, SensorModel
 from compensation.registry import block_class, make_block
 from correlator.optical import OpticalJtc
+from correlator.options import CorrelatorOptions
 from correlator.timing import PipelineTiming, Schedule
 from correlator.tracker import BlockTracker, block_grid
 from imc.scenario import CloudsConfig, Scenario, ScenarioError
@@ -35,9 +35,6 @@ from orbit.tle import TleOrbit
 from scene.classes import CloudLayer, cloud_cell_m, cloud_layer, scene_class
 from scene.geotiff import GeoTiffError, terrain_from_geotiff
 from scene.terrain import Terrain, flat_terrain
-
-if TYPE_CHECKING:  # the correlator's core (numba, FFTW) is imported when options are made
-    from correlator.core import CorrelatorOptions
 
 
 @dataclass(frozen=True)
@@ -318,8 +315,6 @@ def build_models(sc: Scenario, light: bool = False) -> Models:
 def correlator_options(sc: Scenario) -> CorrelatorOptions:
     """The correlator's options; an optical model that cannot hold the blocks is a
     ScenarioError naming the field."""
-    from correlator.core import CorrelatorOptions
-
     c = sc.correlator
     try:
         opts = CorrelatorOptions(
@@ -351,18 +346,18 @@ def predicted_px(m: Models, centers_px: np.ndarray, k_ref: int, k: int,
 def _needs_chain(m: Models) -> bool:
     """True if the predicted motion over the run moves a block off the sensor."""
     n = len(m.frame_t_s)
-    ks = np.unique(np.linspace(0, n - 1, min(n, 16)).astype(int))
+    ks = np.array(sorted({int(k) for k in np.linspace(0, n - 1, min(n, 16))}))
     centers = BlockTracker.centers_from(m.corners, m.scenario.correlator.block_px)
-    zero = np.zeros(2)
     fp = m.camera.focal_plane
     b = m.scenario.correlator.block_px
-    for k in ks:
-        step = np.rint(predicted_px(m, centers, 0, int(k), zero, zero)).astype(int)
-        c = m.corners + step
-        # keep a 4 px margin for jitter and the stage
-        if np.any(c < 4) or np.any(c + b > np.array([fp.rows, fp.cols]) - 4):
-            return True
-    return False
+    # predicted_px (no stage) from frame 0 to every frame of ks at once: (K, B, 2)
+    t_ref = float(m.frame_mid_s[0])
+    ground = m.camera.ground_points(np.asarray(centers, dtype=np.float64), t_ref,
+                                    m.terrain.height_at)
+    motion = m.camera.image_motion_px(ground, m.frame_mid_s[ks], t_ref, nominal=True)
+    c = m.corners[None] + np.rint(motion).astype(int)
+    # keep a 4 px margin for jitter and the stage
+    return bool(np.any(c < 4) or np.any(c + b > np.array([fp.rows, fp.cols]) - 4))
 
 
 def _check_coverage(m: Models) -> None:
@@ -373,9 +368,9 @@ def _check_coverage(m: Models) -> None:
                         [fp.rows - 1 + margin, -margin],
                         [fp.rows - 1 + margin, fp.cols - 1 + margin]])
     times = np.concatenate([m.frame_t_s, m.frame_t_s + m.exposure_s])
-    times = np.unique(np.concatenate([times[:: max(1, len(times) // 64)], times[-1:]]))
-    pts = np.stack([m.camera.ground_points(corners, float(t), m.terrain.height_at)
-                    for t in times])
+    times = np.sort(np.concatenate([times[:: max(1, len(times) // 64)], times[-1:]]))
+    times = times[np.r_[True, np.diff(times) > 0]]  # unique (np.unique imports numpy.ma)
+    pts = m.camera.ground_points(corners, times, m.terrain.height_at)
     inside = m.terrain.contains(pts[..., 0], pts[..., 1], margin_m=4.0 * m.terrain.dem_spacing_m)
     if not np.all(inside):
         need = 2.0 * float(np.max(np.abs(pts[..., :2]))) + 8.0 * m.terrain.dem_spacing_m

@@ -111,13 +111,13 @@ def edge_terrain(m: Models, angle_deg: float = EDGE_ANGLE_DEG, albedo=(0.15, 0.6
     cam = m.main_camera
     c = cam.focal_plane.center_px
     t_ref = 0.0 if t_s is None else float(t_s)
-    g = cam.ground_points(np.array([c + [0.0, -50.0], c + [0.0, 50.0]]), t_ref, _flat)
+    g = cam.ground_points(np.array([c + [0.0, -50.0], c + [0.0, 50.0], c]), t_ref, _flat)
     along = (g[1] - g[0])[:2]
     along /= np.linalg.norm(along)
     a = np.deg2rad(angle_deg)
     rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
     normal = rot @ np.array([-along[1], along[0]])
-    through = np.zeros(2) if t_s is None else cam.ground_points(c, t_ref, _flat)[:2]
+    through = np.zeros(2) if t_s is None else g[2, :2]
     n = int(round(size_m / texel_m))
     xs = (np.arange(n) + 0.5) * texel_m - size_m / 2
     # the signed distance east * normal_e + north * normal_n on the (north, east) grid, row 0

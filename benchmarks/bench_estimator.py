@@ -45,10 +45,15 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(x)))) if np.size(x) else float("nan")
 
 
-def accuracy(pairs: int, noise_pairs: int, seed: int) -> dict:
-    """Every accuracy figure of the tree on PYTHONPATH (see the module doc)."""
+def accuracy(pairs: int, noise_pairs: int, seed: int, options: dict | None = None) -> dict:
+    """Every accuracy figure of the tree on PYTHONPATH (see the module doc), the correlator
+    run with ``options`` (:class:`CorrelatorOptions` fields) besides its defaults."""
+    from functools import partial
+
     from correlator.bounds import correlation_bound_px, crlb_px
-    from correlator.core import measure_shift
+    from correlator.core import measure_shift as _measure_shift
+
+    measure_shift = partial(_measure_shift, **(options or {}))
     from correlator.testimages import MEAN_LEVEL, image_pairs, texture_pairs
     from imc.studies.correlator_peers import PHOTOS, TEXTURED_PHOTOS, peers, photos
 
@@ -151,10 +156,13 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--speed-only", action="store_true", help="only the speed rounds")
+    ap.add_argument("--options", default="{}", help="JSON correlator options for the 'after' "
+                    "tree, e.g. '{\"false_valid_rate\": 0.005}'")
     ap.add_argument("--child", nargs="*")
     a = ap.parse_args()
     if a.child is not None:
-        res = (accuracy(a.pairs, a.noise_pairs, a.seed) if a.child[:1] == ["accuracy"]
+        res = (accuracy(a.pairs, a.noise_pairs, a.seed, json.loads(a.options))
+               if a.child[:1] == ["accuracy"]
                else {"pairs_per_s": speed()})
         print(json.dumps(res))
         return
@@ -173,7 +181,8 @@ def main() -> None:
             print(f"speed ratio after/before: best {max(rates['after']) / max(rates['before']):.3f}"
                   f", median {np.median(rates['after']) / np.median(rates['before']):.3f}")
         return
-    acc = {k: _sub(t, *args) for k, t in trees.items()}
+    acc = {k: _sub(t, *args, *(("--options", a.options) if k == "after" else ()))
+           for k, t in trees.items()}
     print("| figure | " + " | ".join(names) + " |")
     print("|---|" + "---|" * len(names))
 

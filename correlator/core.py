@@ -43,14 +43,15 @@ compiled kernels, :mod:`correlator.kernels`, on threads over the stack; FFTs thr
    spectra (after the passes, J from the same weights and (|R|^2 + |C|^2) / 2) and the noise
    level (estimated from the highest frequencies), equal to the Cramer-Rao bound
    2 sigma^2 (sum g g^T)^-1 for flat weights at high SNR.
-6. validity: a detection decision (:mod:`correlator.detection`): the probability that noise
-   alone puts a peak as high as the chosen one in the searched area (``p_false``, from the
-   PSR and the number of searched cells of the whitened surface) at most
-   ``false_valid_rate``, and the PSR above a safeguard floor; no rival peak near the best,
-   texture and finite input,
-   a concave peak that is settled (last Newton step and last pass move small against the
-   block's own predicted error) and a predicted error below ``max_crlb_px`` (so an error of
-   0.5 px is a > 3-sigma event).
+6. validity: a detection decision: the probability that the result is 0.5 px or more off
+   (``p_wrong``) at most ``false_valid_rate``. It is wrong when noise alone puts a peak as
+   high as the chosen one in the searched area (``p_false``, :mod:`correlator.detection`,
+   from the PSR and the number of searched cells of the whitened surface) or when the
+   estimate on the true peak lands in its tail (:mod:`correlator.tail`, from the predicted
+   error and the peak's restoring ratio). Besides: the PSR above a safeguard floor; no rival
+   peak near the best, texture and finite input, a concave peak that is settled (last Newton
+   step and last pass move small against the block's own predicted error) and, if asked, a
+   predicted error below ``max_crlb_px``.
 
 References
 ----------
@@ -74,12 +75,13 @@ import numpy as np
 import scipy.fft as sfft
 from threadpoolctl import ThreadpoolController
 
-from correlator import detection, fftbackend, gradient, jtc, kernels, peaks, spectral
+from correlator import detection, fftbackend, gradient, jtc, kernels, peaks, spectral, tail
 from correlator.masked import MaskedDetector
 from correlator.optical import OpticalJtc
 from correlator.options import (  # noqa: F401  (re-exported: the options belong with the core)
     DETECTIONS,
     METHODS,
+    OPTICAL_MAX_CRLB_PX,
     OPTICAL_PSR_THRESHOLD,
     OPTICAL_SUBPIXEL,
     PSR_SAFEGUARD,
@@ -154,6 +156,10 @@ class ShiftResult:
     p_false : (...) float64 or None, the probability that noise alone puts a peak of the
         detection surface as high as the chosen one (:mod:`correlator.detection`); NaN
         where the method has no such model (the optical correlator).
+    p_wrong : (...) float64 or None, the probability that the result is 0.5 px or more off
+        on an axis: a noise peak (``p_false``) or the true peak's estimate in its tail
+        (:mod:`correlator.tail`); valid results have p_wrong <= ``false_valid_rate``. NaN
+        for the optical correlator.
     """
 
     shift: np.ndarray
@@ -161,6 +167,7 @@ class ShiftResult:
     peak: np.ndarray
     crlb: np.ndarray
     p_false: np.ndarray | None = None
+    p_wrong: np.ndarray | None = None
 
 
 def _as_stack(a: np.ndarray, name: str) -> np.ndarray:
@@ -437,7 +444,8 @@ class Correlator:
             pred = np.broadcast_to(np.asarray(predicted, dtype=np.float64), (n, 2))
         if n == 0:
             z = np.zeros((0, 2))
-            return ShiftResult(z, np.zeros(0, bool), np.zeros(0), z.copy(), np.zeros(0))
+            return ShiftResult(z, np.zeros(0, bool), np.zeros(0), z.copy(), np.zeros(0),
+                               np.zeros(0))
         with self._lock:
             if self._optical is not None:  # one pass: the emulation threads its FFTs itself
                 seeds = (rng if rng is not None else self._rng).integers(0, 2**63 - 1, size=n)
@@ -456,10 +464,10 @@ class Correlator:
                 parts = self._parallel(
                     lambda s: self._measure(cur_arr[s], idx[s],
                                             None if pred is None else pred[s], cache), n)
-        shift, valid, psr, crlb, pf = (np.concatenate([p[i] for p in parts]) for i in range(5))
+        out = [np.concatenate([p[i] for p in parts]) for i in range(6)]
         if self._single and np.ndim(cur) == 2:
-            return ShiftResult(shift[0], valid[0], psr[0], crlb[0], pf[0])
-        return ShiftResult(shift, valid, psr, crlb, pf)
+            return ShiftResult(*(a[0] for a in out))
+        return ShiftResult(*out)
 
     # ---------------------------------------------------------------------- internals
     def _parallel(self, fn, n: int) -> list:
@@ -531,6 +539,16 @@ class Correlator:
                        0.0 if band else NEWTON_STOP_PX, val, hess, step)
         return d, hess, step, val
 
+    def _restoring(self, y: np.ndarray, blk: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """Restoring ratios (m, 2) of the full-spectrum correlation of blocks ``blk`` of y
+        about its peak at d (m, 2): :func:`correlator.tail.restoring_ratio` at 0.5 px."""
+        g = self._lay.full
+        out = np.empty((len(d), 2))
+        tail.restoring_ratio(y.view(np.float32), np.asarray(blk, dtype=np.int64),
+                             np.arange(self._lay.h, dtype=np.int64), g.ay, g.rows, g.ax,
+                             g.alpha, np.asarray(d, dtype=np.float64), tail.WRONG_PX, out)
+        return out
+
     def _hessian(self, y: np.ndarray, d: np.ndarray) -> np.ndarray:
         """Hessian (n, 2, 2) of the correlation of spectra y (n, h, k) at lags d (n, 2)."""
         return self._newton(y, np.arange(len(y)), d, 1)[1]
@@ -578,9 +596,10 @@ class Correlator:
         # ---- sub-pixel
         if o.subpixel == "fourier":
             if self._masked is not None:
-                shift, crlb, converged = self._fourier_masked(y, ridx, cur_arr, noise, d0, cache)
+                shift, crlb, rho, converged = self._fourier_masked(y, ridx, cur_arr, noise, d0,
+                                                                   cache)
             else:
-                shift, crlb, converged, psr, ambiguous, cells = self._fourier(
+                shift, crlb, rho, converged, psr, ambiguous, cells = self._fourier(
                     y, floor, ridx, cur_arr, noise, ref_m, pred,
                     d_fit if o.joint_plane else None, cache)
         else:
@@ -595,24 +614,28 @@ class Correlator:
             else:
                 shift, converged = d_fit, np.ones(n, bool)
                 crlb = _crlb(ref_m, noise, self._hessian(y, shift), h * w)
+            rho = self._restoring(y, np.arange(n), shift)
         if self._masked is not None:
             psr, agree, cells = self._common_psr(ridx, cur_arr, shift, cache)
             converged &= agree
         p_false = detection.false_alarm_probability(psr, cells)
+        # wrong: a noise peak, or the true peak's estimate 0.5 px or more off (its tail)
+        with np.errstate(divide="ignore"):
+            p_wrong = -np.expm1(np.log1p(-p_false) + np.log1p(-tail.tail_probability(crlb, rho)))
         valid = (
             self._ref_ok[ridx]
             & cur_ok
-            & (p_false <= o.false_valid_rate)
+            & (p_wrong <= o.false_valid_rate)
             & (psr >= o.psr_threshold)
             & converged
             & ~ambiguous
             & np.all(np.isfinite(shift), axis=1)
             & np.all(np.abs(shift) <= self.max_shift_px + 0.5, axis=1)
-            & np.all(crlb <= o.max_crlb_px, axis=1)
+            & (np.all(crlb <= o.max_crlb_px, axis=1) if o.max_crlb_px is not None else True)
         )
         shift = np.where(np.isfinite(shift), shift, 0.0)
         # the detection's PSR is finite (0 where it is not)
-        return shift, valid, psr, crlb, p_false
+        return shift, valid, psr, crlb, p_false, p_wrong
 
     def _cur0(self, cur_arr: np.ndarray) -> np.ndarray:
         return _sanitise(cur_arr)[0]
@@ -636,8 +659,9 @@ class Correlator:
         crlb = _crlb(self._ref_m[idx], noise, self._hessian(y, shift), h * w)
         valid = (self._ref_ok[idx] & cur_ok & (psr >= o.psr_threshold)
                  & np.all(np.abs(shift) <= self.max_shift_px + 0.5, axis=1)
-                 & np.all(crlb <= o.max_crlb_px, axis=1))
-        return shift, valid, np.nan_to_num(psr), crlb, np.full(len(idx), np.nan)
+                 & np.all(crlb <= (OPTICAL_MAX_CRLB_PX if o.max_crlb_px is None
+                                   else o.max_crlb_px), axis=1))
+        return shift, valid, np.nan_to_num(psr), crlb, *np.full((2, len(idx)), np.nan)
 
     def _band_detect(self, y: np.ndarray, bw: np.ndarray, rows: np.ndarray,
                      floor: np.ndarray, given: np.ndarray):
@@ -666,7 +690,7 @@ class Correlator:
         """Fourier refinement after the band detection: band Newton from the detected peak
         (or the joint plane's fit ``d_fit``), weighted full-band Newton, common-content
         passes; blocks with a trusted prediction ``pred`` start Newton from it.
-        Returns (shift, crlb, converged, psr, ambiguous, cells)."""
+        Returns (shift, crlb, restoring ratio, converged, psr, ambiguous, cells)."""
         o, lay = self.options, self._lay
         h, w = self.shape
         n = len(y)
@@ -695,8 +719,11 @@ class Correlator:
         # ---- common-content passes: blocks moved beyond the exact margin (or all, if asked)
         far = np.any(np.abs(d) > lay.margin, axis=1) & np.isfinite(d).all(axis=1)
         idx = np.flatnonzero(np.ones(n, bool) if o.rewindow else far)
-        settled = self._passes(idx, ridx, cur_arr, noise, d, crlb, settled, cache)
-        return d, crlb, sane & settled, psr, ambiguous, cells
+        rho = np.full((n, 2), np.nan)  # the passes set theirs
+        rest = np.setdiff1d(np.arange(n), idx)
+        rho[rest] = self._restoring(y, rest, d[rest])
+        settled = self._passes(idx, ridx, cur_arr, noise, d, crlb, rho, settled, cache)
+        return d, crlb, rho, sane & settled, psr, ambiguous, cells
 
     def _fourier_masked(self, y, ridx, cur_arr, noise, d0, cache):
         """Fourier refinement after a masked detection: the lag is good to a bin, so straight
@@ -707,17 +734,18 @@ class Correlator:
         n = len(d0)
         idx = np.arange(n)
         cbox = _CurPower(n, self.shape)
-        d, crlb, _ = self._common_pass(idx, ridx, cur_arr, noise, d0, cache, coarse=True,
-                                       cbox=cbox)
+        d, crlb, _, _ = self._common_pass(idx, ridx, cur_arr, noise, d0, cache, coarse=True,
+                                          cbox=cbox)
+        rho = np.full((n, 2), np.nan)  # set by the passes (d not finite: no result)
         sane = np.abs(d - d0).max(axis=1) < lay.q + 1
         idx = np.flatnonzero(np.isfinite(d).all(axis=1))
-        settled = self._passes(idx, ridx, cur_arr, noise, d, crlb, np.ones(n, bool), cache,
-                               cbox)
-        return d, crlb, sane & settled
+        settled = self._passes(idx, ridx, cur_arr, noise, d, crlb, rho, np.ones(n, bool),
+                               cache, cbox)
+        return d, crlb, rho, sane & settled
 
-    def _passes(self, idx, ridx, cur_arr, noise, d, crlb, settled, cache,
+    def _passes(self, idx, ridx, cur_arr, noise, d, crlb, rho, settled, cache,
                 cbox: _CurPower | None = None):
-        """Common-content passes of blocks ``idx``, in place on d and crlb, repeated to their
+        """Common-content passes of blocks ``idx``, in place on d, crlb and rho, repeated to their
         fixed point; returns ``settled`` updated by each block's last pass.
 
         The windows follow the estimate, so the pass is repeated until it is self-consistent.
@@ -733,11 +761,11 @@ class Correlator:
             cbox = _CurPower(len(d), self.shape)
         prev = np.zeros_like(d)
         moved = np.zeros(len(d))
-        for _ in range(COMMON_PASSES):
+        for it in range(COMMON_PASSES):
             if not len(idx):
                 break
-            d2, c2, step2 = self._common_pass(idx, ridx, cur_arr, noise, d[idx], cache,
-                                              cbox=cbox)
+            d2, c2, step2, y = self._common_pass(idx, ridx, cur_arr, noise, d[idx], cache,
+                                                 cbox=cbox)
             step = d2 - d[idx]
             p = prev[idx]
             ratio = np.divide(step, p, out=np.zeros_like(step), where=np.abs(p) > AITKEN_MIN_PX)
@@ -748,7 +776,11 @@ class Correlator:
             settled[idx] = _settled(step2, c2, NEWTON_TOL_PX)
             moved[idx] = np.abs(step).max(axis=1)
             tol = np.maximum(COMMON_PASS_TOL_PX, PASS_TOL_REL * c2.max(axis=1))
-            idx = idx[np.isfinite(moved[idx]) & (moved[idx] > tol)]
+            more = np.isfinite(moved[idx]) & (moved[idx] > tol)
+            done = np.flatnonzero(~more) if it < COMMON_PASSES - 1 else np.arange(len(idx))
+            if len(done):  # a block's last pass: its restoring ratio (correlator.tail)
+                rho[idx[done]] = self._restoring(y, done, d2[done])
+            idx = idx[more]
         # still moving after the last pass: not self-consistent, not a result to trust
         return settled & (moved <= np.maximum(COMMON_PASS_MAX_MOVE_PX,
                                               SETTLED_REL * crlb.max(axis=1)))
@@ -759,7 +791,8 @@ class Correlator:
         at lags d; ``coarse``: start with two band Newton steps (d good only to a decimation
         step). The weights are Knapp-Carter's from the power of both blocks (the box means
         of cur's power are made on a block's first pass and kept in ``cbox``, scaled by the
-        windows' energies after). Returns (d, crlb, last Newton step)."""
+        windows' energies after). Returns (d, crlb, last Newton step, the pass's weighted cross
+        spectra y (m, h, k))."""
         o = self.options
         h, w = self.shape
         y, _, m, (_, srow), (cspec, pbox, s2r, energy) = self._pass_spectra(
@@ -788,7 +821,7 @@ class Correlator:
             d = self._newton(y, blk, d, 2, band=True)[0]
         d2, hess, step, _ = self._newton(y, blk, d, o.iterations)
         crlb = _crlb(m, noise[idx], hess, h * w)
-        return d2, crlb, step
+        return d2, crlb, step, y
 
     def _pass_spectra(self, idx, ridx, cur_arr, d, cache):
         """Weighted cross spectra (m, h, k) of blocks ``idx`` with ref windowed to the content

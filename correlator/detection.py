@@ -19,10 +19,11 @@ the noise's largest, is then flagged valid with that probability at most.
 
 Measured on noise-only pairs (10,000 each), the share with P_fa <= 0.001 is 0.0007-0.0012 at
 64^2-128^2 and 0.003 at 32^2 (a heavier tail of the 32^2 surface); at 0.05 it is 0.045-0.06
-at 64^2-256^2 and 0.087 at 32^2 (``benchmarks/bench_validity.py``). P_fa models the choice of
-a noise peak only: at low SNR the errors of textured pairs beyond 0.5 px are sub-pixel tails
-(0.5-1.6 px with a predicted error of 0.15-0.3 px, which those errors exceed by 1.1-1.5x),
-which the predicted-error limit ``max_crlb_px`` keeps out.
+at 64^2-256^2 and 0.087 at 32^2 (``benchmarks/bench_validity.py``).
+P_fa models the choice of a noise peak only: at low SNR the errors of textured pairs beyond
+0.5 px are mostly sub-pixel tails of the true peak's estimate (0.5-1.6 px with a predicted
+error of 0.15-0.3 px), which :mod:`correlator.tail` models; a result's ``p_wrong`` combines
+the two.
 
 References
 ----------

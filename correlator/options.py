@@ -19,6 +19,9 @@ from correlator.optical import JtocModel
 #: output plane has no noise model)
 PSR_SAFEGUARD = 5.5
 OPTICAL_PSR_THRESHOLD = 7.0
+#: the optical correlator's largest predicted error of a valid result, px, where
+#: ``max_crlb_px`` is None (its output plane has no tail model either)
+OPTICAL_MAX_CRLB_PX = 0.15
 
 #: the correlation methods, sub-pixel estimators, weightings and integer-peak detections
 METHODS = ("jtc", "xcorr", "phase", "optical")
@@ -39,12 +42,18 @@ class CorrelatorOptions:
         'gradient', 'parabolic', 'gaussian' or 'com'.
     jtc_filter : 'subtract' (default), 'plain' (joint plane only) or 'fringe'.
     joint_plane : for 'jtc', build the joint input plane explicitly (slower, as the optics do).
-    false_valid_rate : a result is valid only when the probability that noise alone puts a
-        peak as high as its peak in the searched area (``ShiftResult.p_false``:
+    false_valid_rate : a result is valid only when the probability that it is 0.5 px or more
+        off on an axis (``ShiftResult.p_wrong``) is at most this: that noise alone put a
+        peak as high as its peak in the searched area (``ShiftResult.p_false``,
         :func:`correlator.detection.false_alarm_probability` of its PSR over the searched
-        cells) is at most this. 0.001: a PSR of 4.8 with the default quarter-block search of
-        64^2-256^2 blocks (33^2 cells), 4.5 at 32^2 (17^2); on noise-only pairs the measured
-        rate of P_fa <= 0.001 is 0.0007-0.0012 at 64^2-128^2 and 0.003 at 32^2 (10,000 each).
+        cells) or that the estimate on the true peak lies in its tail
+        (:func:`correlator.tail.tail_probability` of its predicted error and restoring
+        ratio). 0.005 (default): an axis's predicted error up to ~0.19 px on low-pass
+        texture; low-contrast photographs 83.7 % valid and within 0.5 px (scikit-image 83.5 %
+        within), weak texture at SNR 10 75 % with 0.17 % false-valid, 0 of 10,000 noise-only
+        pairs (``benchmarks/bench_estimator.py``). 0.001: 80.8 % and 27 % (the former
+        0.15 px limit alone: 81.4 % and 38 %). Noise peaks alone reach 0.001 at a PSR of 4.8
+        (33^2 cells, the quarter-block search of 64^2-256^2 blocks), 4.5 at 32^2 (17^2).
     psr_threshold : the least PSR of a valid result besides ``false_valid_rate``, a
         safeguard. None (default): :data:`PSR_SAFEGUARD` (5.5; 7 for method 'optical', whose
         output plane has no noise model). With the detection gate alone (no PSR floor) 1 of
@@ -55,12 +64,11 @@ class CorrelatorOptions:
         noise-only pairs. So at the default search the floor, not the 0.001 rate, is the
         binding PSR; the rate binds below ~2e-5 (or beyond ~50,000 searched cells).
     max_shift_px : largest |shift| component searched; default a quarter of the block size.
-    max_crlb_px : largest predicted 1-sigma error of a valid result, px. 0.15: an error of
-        0.5 px is a > 3-sigma event on an axis, so even a texture whose every block sits near
-        the limit stays below 0.5 % false-valid (0.2 gives 0.7 % on the weak texture at SNR 10,
-        whose errors are 1.14x their prediction, while it flags 85 % instead of 81 % of
-        low-contrast photographs valid with 0.2 % false-valid; 0.18 passes 1.75 % false-valid
-        at 128^2, SNR 1, where errors exceed their small-error prediction).
+    max_crlb_px : None (default) or the largest predicted 1-sigma error of a valid result,
+        px, besides ``false_valid_rate`` (whose tail term already limits it: at 0.005 no
+        result with an axis's predicted error above 0.5 / 2.81 = 0.178 px divided by its
+        restoring ratio passes). The former default 0.15 adds nothing measurable at
+        a rate of 0.001 (the same results on 1,600 weak and medium pairs).
     weighting : 'snr' (Knapp-Carter weights, default) or 'flat' for the Fourier refinement.
     rewindow : give every block the passes with both windows on the common content
         (default; False keeps one FFT per block, its window bias is 0.01-0.03 px on smooth
@@ -91,10 +99,10 @@ class CorrelatorOptions:
     subpixel: str | None = None
     jtc_filter: str = "subtract"
     joint_plane: bool = False
-    false_valid_rate: float = 0.001
+    false_valid_rate: float = 0.005
     psr_threshold: float | None = None
     max_shift_px: float | None = None
-    max_crlb_px: float = 0.15
+    max_crlb_px: float | None = None
     weighting: str = "snr"
     rewindow: bool = True
     iterations: int = 3
@@ -132,7 +140,8 @@ class CorrelatorOptions:
             object.__setattr__(self, "psr_threshold",
                                OPTICAL_PSR_THRESHOLD if self.method == "optical"
                                else PSR_SAFEGUARD)
-        if self.psr_threshold < 0 or self.iterations < 0 or self.max_crlb_px <= 0:
+        if (self.psr_threshold < 0 or self.iterations < 0
+                or (self.max_crlb_px is not None and self.max_crlb_px <= 0)):
             raise ValueError("psr_threshold and iterations must be >= 0, max_crlb_px > 0")
         if not 0.0 < self.false_valid_rate < 1.0:
             raise ValueError(f"false_valid_rate must be within (0, 1), got "

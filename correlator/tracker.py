@@ -104,7 +104,8 @@ class BlockTracker:
         shift = np.where(inside[:, None], res.shift + step, np.nan)
         return type(res)(shift, res.valid & inside, np.where(inside, res.peak, 0.0),
                            np.where(inside[:, None], res.crlb, np.inf),
-                           np.where(inside, res.p_false, 1.0))
+                           np.where(inside, res.p_false, 1.0),
+                           np.where(inside, res.p_wrong, 1.0))
 
     def _warped(self, frame, flow, sel, rng, index) -> ShiftResult:
         """:meth:`update` through a predicted flow (see there)."""
@@ -127,4 +128,5 @@ class BlockTracker:
         shift = np.where(inside[:, None], res.shift + centre, np.nan)
         return type(res)(shift, res.valid & inside, np.where(inside, res.peak, 0.0),
                            np.where(inside[:, None], res.crlb, np.inf),
-                           np.where(inside, res.p_false, 1.0))
+                           np.where(inside, res.p_false, 1.0),
+                           np.where(inside, res.p_wrong, 1.0))

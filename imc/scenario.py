@@ -583,12 +583,14 @@ class CorrelatorConfig(_Model):
         "com for optical, which allows com, parabolic, gaussian)")
     block_px: int = Field(64, ge=16, le=1024, description="block side, px")
     n_blocks: int = Field(4, ge=1, le=1024, description="number of tracked blocks")
-    false_valid_rate: float = Field(0.001, gt=0.0, lt=1.0, description="largest probability "
-                                    "that noise alone makes a valid result's peak")
+    false_valid_rate: float = Field(0.005, gt=0.0, lt=1.0, description="largest probability "
+                                    "that a valid result is 0.5 px or more off (a noise "
+                                    "peak or the estimate's tail)")
     psr_threshold: float | None = Field(None, ge=0.0, description="peak-to-sidelobe floor "
                                         "(null: the correlator's safeguard, 5.5; 7 optical)")
-    max_crlb_px: float = Field(0.15, gt=0.0, description="largest predicted 1-sigma error "
-                               "of a valid measurement, px")
+    max_crlb_px: float | None = Field(None, gt=0.0, description="largest predicted 1-sigma "
+                                      "error of a valid measurement, px (null: none besides "
+                                      "false_valid_rate)")
     rewindow: bool = Field(True, description="second pass with windows on the common content "
                            "(about 2x the cost; false: one FFT per block)")
     trust_prediction_px: float | None = Field(

@@ -5,8 +5,8 @@ Protocol (the paper's): fragments rendered at 0.25 m and resampled to 0.75 m per
 sub-pixel shifts applied before resampling, motion blur in the Fourier domain, 128^2 blocks,
 grey levels 0..255 with noise of sigma 20; the error of a block is |bias| + 1 sigma over its
 successful trials (valid, and within ``success_px`` = 0.5 px of the truth on both axes: the
-correlator's own validity with its default ``max_crlb_px`` of 0.15 px); a block where fewer
-than half the trials succeed is flagged (NaN), and the trials called valid but off by more
+correlator's own validity with a ``max_crlb_px`` of 0.15 px, its former default); a block where
+fewer than half the trials succeed is flagged (NaN), and the trials called valid but off by more
 than 0.5 px are counted apart (``wrong``).
 
 Here the scene (urban by default, or a user GeoTIFF) is seen at nadir from an aircraft at

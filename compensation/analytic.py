@@ -35,7 +35,7 @@ from functools import cached_property, lru_cache
 
 import numpy as np
 
-from compensation.controllers import FeedbackController, KalmanPredictor, polymul
+from compensation.controllers import FeedbackController, KalmanPredictor, polymul, polyval
 from compensation.loop import Trajectory
 from compensation.metrics import json_dict
 
@@ -195,18 +195,18 @@ class LoopModel:
         x = 1.0 / z
         b, a, predictor = self.controller_tf()
         n, _ = self.timing
-        c = np.polynomial.polynomial.polyval(x, b) / np.polynomial.polynomial.polyval(x, a)
+        c = polyval(x, b) / polyval(x, a)
         g, g_pq = self._plant_polys()
-        lp = np.polynomial.polynomial.polyval(x, g_pq if predictor else g)
+        lp = polyval(x, g_pq if predictor else g)
         return c * x**n / (1.0 + c * lp)
 
     def loop_tf(self, f_hz) -> np.ndarray:
         """The loop transfer L at frequencies f (for the margins)."""
         x = 1.0 / self._z(f_hz)
         b, a, predictor = self.controller_tf()
-        c = np.polynomial.polynomial.polyval(x, b) / np.polynomial.polynomial.polyval(x, a)
+        c = polyval(x, b) / polyval(x, a)
         g, g_pq = self._plant_polys()
-        return c * np.polynomial.polynomial.polyval(x, g_pq if predictor else g)
+        return c * polyval(x, g_pq if predictor else g)
 
     def stage_response(self, f_hz) -> np.ndarray:
         """H(w) / T: the stage's first-harmonic response to a held command sequence."""
@@ -307,12 +307,12 @@ def design_lines(controller: FeedbackController, model: LoopModel) -> FeedbackCo
         notch = 1.0
         if controller.notch is not None:
             bn, an = controller.notch.coefficients(controller.rate_hz)
-            notch = (np.polynomial.polynomial.polyval(x, bn)
-                     / np.polynomial.polynomial.polyval(x, an))
-        gv = np.polynomial.polynomial.polyval(x, g) * notch
+            notch = (polyval(x, bn)
+                     / polyval(x, an))
+        gv = polyval(x, g) * notch
         fundamental = x**n * m.averaging(f)[0] * m.stage_response(f)[0] * notch
         alpha = complex(gv - fundamental)
-        c = np.polynomial.polynomial.polyval(x, b) / np.polynomial.polynomial.polyval(x, a)
+        c = polyval(x, b) / polyval(x, a)
         geff = fundamental / (1.0 + c * gv)
         phases.append(float(-np.angle(geff)))
         mus.append(float(2.0 * ln.gain / max(abs(geff), 1e-9)))

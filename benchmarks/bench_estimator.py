@@ -158,9 +158,16 @@ def main() -> None:
     ap.add_argument("--speed-only", action="store_true", help="only the speed rounds")
     ap.add_argument("--options", default="{}", help="JSON correlator options for the 'after' "
                     "tree, e.g. '{\"false_valid_rate\": 0.005}'")
+    ap.add_argument("--smooth-fraction", type=float, default=None,
+                    help="correlator.core.SMOOTH_FRACTION for the 'after' tree (the power "
+                    "average's box over the block size)")
     ap.add_argument("--child", nargs="*")
     a = ap.parse_args()
     if a.child is not None:
+        if a.smooth_fraction is not None:
+            import correlator.core
+
+            correlator.core.SMOOTH_FRACTION = a.smooth_fraction
         res = (accuracy(a.pairs, a.noise_pairs, a.seed, json.loads(a.options))
                if a.child[:1] == ["accuracy"]
                else {"pairs_per_s": speed()})
@@ -181,8 +188,9 @@ def main() -> None:
             print(f"speed ratio after/before: best {max(rates['after']) / max(rates['before']):.3f}"
                   f", median {np.median(rates['after']) / np.median(rates['before']):.3f}")
         return
-    acc = {k: _sub(t, *args, *(("--options", a.options) if k == "after" else ()))
-           for k, t in trees.items()}
+    extra = ("--options", a.options) + (() if a.smooth_fraction is None
+                                        else ("--smooth-fraction", str(a.smooth_fraction)))
+    acc = {k: _sub(t, *args, *(extra if k == "after" else ())) for k, t in trees.items()}
     print("| figure | " + " | ".join(names) + " |")
     print("|---|" + "---|" * len(names))
 

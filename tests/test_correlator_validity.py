@@ -164,3 +164,17 @@ def test_predicted_wrong_rate_matches_the_measured_one_near_the_threshold():
     assert wrong >= 8, wrong
     assert 0.5 <= wrong / pred <= 2.0, (wrong, pred)
     assert lin < pred
+
+
+def test_gradient_path_is_not_valid_and_wrong_at_low_snr():
+    # subpixel 'gradient' (Lucas-Kanade) on the medium texture at SNR 4, 64^2: its own
+    # predicted error is too small there (27 of 102 valid results were >= 0.5 px off with
+    # p_wrong ~1e-5); with the spectrum's predicted error as a floor none of the valid ones
+    # is wrong (3 valid of 200), while at SNR 10 on the strong texture all 200 stay valid
+    rng = np.random.default_rng(21)
+    ref, cur, d = texture_pairs(200, 64, rng, snr=4.0, texture="medium")
+    r = measure_shift(ref, cur, subpixel="gradient")
+    assert (r.valid & (np.abs(r.shift - d).max(axis=1) >= 0.5)).sum() == 0
+    ref, cur, d = texture_pairs(200, 64, rng, snr=10.0, texture="strong")
+    r = measure_shift(ref, cur, subpixel="gradient")
+    assert r.valid.all() and np.abs(r.shift - d).max() < 0.1

@@ -102,6 +102,7 @@ def tail_probability(crlb: np.ndarray, rho: np.ndarray, limit_px: float = WRONG_
                      ) -> np.ndarray:
     """P(an axis's error >= ``limit_px``) (n,) of estimates with predicted 1-sigma errors
     crlb (n, 2) px and restoring ratios rho (n, 2): 1 - prod (1 - 2 Q(rho limit / crlb));
+    a ratio above 1 (noise in the high frequencies' Re(z)) counts as 1, the linear tail;
     1 where either is not finite or positive."""
     from scipy import special
 

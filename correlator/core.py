@@ -781,7 +781,7 @@ class Correlator:
             moved[idx] = np.abs(step).max(axis=1)
             tol = np.maximum(COMMON_PASS_TOL_PX, PASS_TOL_REL * c2.max(axis=1))
             more = np.isfinite(moved[idx]) & (moved[idx] > tol)
-            done = np.flatnonzero(~more) if it < COMMON_PASSES - 1 else np.arange(len(idx))
+            done = np.flatnonzero(~more | (it == COMMON_PASSES - 1))
             if len(done):  # a block's last pass: its restoring ratio (correlator.tail)
                 rho[idx[done]] = self._restoring(y, done, d2[done])
             idx = idx[more]

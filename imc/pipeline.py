@@ -2,8 +2,9 @@
 
 The models come from :mod:`imc.wiring.build`, the plant from
 :mod:`imc.wiring.rendered_plant`, the loop from :mod:`compensation.loop`, the truth from
-:mod:`imc.wiring.truth`, the reports from :mod:`imc.outputs.report`, the checkpoints from
-:mod:`imc.wiring.checkpoint`.
+:mod:`imc.wiring.truth`, the main imager's blur from :mod:`imc.wiring.blur`, the reports from
+:mod:`imc.outputs` (their drawing and recording as jobs of :mod:`imc.outputs.jobs`), the
+checkpoints from :mod:`imc.wiring.checkpoint`.
 """
 
 from __future__ import annotations
@@ -16,10 +17,16 @@ from pathlib import Path
 import numpy as np
 
 from compensation.loop import simulate
-from imc.outputs.report import summarize, write_outputs
+from imc.io import write_json
+from imc.outputs.figures import draw_run_figures, fig_main_imager
+from imc.outputs.jobs import Jobs, make_jobs
+from imc.outputs.product_report import write_quicklook
+from imc.outputs.report import summarize, write_tables
+from imc.outputs.rerun_log import recording_data, write_recording
 from imc.scenario import Scenario
 from imc.wiring import streams
 from imc.wiring.advisories import advisories
+from imc.wiring.blur import window_blur, write_blur_npz
 from imc.wiring.build import Models, build_loop, build_models
 from imc.wiring.checkpoint import ChunkStore
 from imc.wiring.rendered_plant import build_plant
@@ -53,10 +60,28 @@ def link_channel(m: Models, link):
 
 def run_scenario(sc: Scenario, out: Path, save_frames: bool = False, fresh: bool = False,
                  progress: ProgressFn | None = None, rerun: bool = True,
-                 warn: Callable[[str], None] | None = None) -> tuple[dict, dict]:
+                 warn: Callable[[str], None] | None = None, report_figures: bool = False,
+                 parallel_outputs: bool = False) -> tuple[dict, dict]:
     """Run a scenario end to end; returns (metrics, run info). Resumes from the checkpoint
-    chunks of the same scenario in ``out`` unless ``fresh``."""
+    chunks of the same scenario in ``out`` unless ``fresh``. ``report_figures``: also draw
+    the report's figures (run info ``figures``, for
+    :func:`imc.outputs.htmlreport.write_run_report`); ``parallel_outputs``: draw and record
+    on a helper process (:mod:`imc.outputs.jobs`), the same files."""
     t_start = time.perf_counter()
+    jobs = make_jobs(parallel_outputs and (rerun or report_figures or sc.metrics.blur_images))
+    try:
+        metrics, info = _run(sc, Path(out), save_frames, fresh, progress, rerun, warn,
+                             report_figures, jobs)
+    finally:
+        jobs.close()
+    info["wall_s"] = time.perf_counter() - t_start
+    info["loop_s"] = info.pop("loop_done") - t_start
+    return metrics, info
+
+
+def _run(sc: Scenario, out: Path, save_frames: bool, fresh: bool, progress: ProgressFn | None,
+         rerun: bool, warn: Callable[[str], None] | None, report_figures: bool,
+         jobs: Jobs) -> tuple[dict, dict]:
     m = build_models(sc)
     if sc.product.enabled:  # refuse a product that does not fit before rendering anything
         from imc.wiring.product import plan_product
@@ -100,30 +125,42 @@ def run_scenario(sc: Scenario, out: Path, save_frames: bool = False, fresh: bool
     t_loop = time.perf_counter()
     truth = compute_truth(m, res.record, res.trajectory)
     metrics = summarize(m, res, truth, parts, link_stats)
+    blurs = (window_blur(truth, None), window_blur(truth, res.trajectory))
+    metrics["main_imager_blur"] = write_blur_npz(out / "blur.npz", truth, res.trajectory, blurs)
+    frames = getattr(plant, "frames", None)
+    ref_corners = getattr(plant, "ref_corners_rec", None)
+    files = write_tables(m, res, truth, out, frames, ref_corners, save_frames, parts.model)
+    files.append(out / "blur.npz")
+    # the figures of the files written so far, while the main imager renders
+    drawn = jobs.submit(draw_run_figures, out, dict(metrics)) if report_figures else None
+    drawing = []
     if sc.metrics.blur_images and m.line_rate_hz is None:
         from imc.wiring.blur import main_imager_study
 
-        metrics["main_imager_blur"] = main_imager_study(m, res.trajectory, truth, out,
-                                                        spp=sc.metrics.blur_spp)
-    else:
-        from imc.wiring.blur import write_blur_npz
-
-        metrics["main_imager_blur"] = write_blur_npz(out / "blur.npz", truth, res.trajectory)
+        metrics["main_imager_blur"], picture = main_imager_study(
+            m, res.trajectory, truth, blurs, metrics["main_imager_blur"],
+            spp=sc.metrics.blur_spp)
+        drawing.append(jobs.submit(fig_main_imager, out / "main_imager.png", picture))
     if sc.product.enabled:
         from imc.wiring.product import product_study
 
         metrics["product"] = product_study(m, res, out, fresh)
-    frames = getattr(plant, "frames", None)
-    ref_corners = getattr(plant, "ref_corners_rec", None)
-    files = write_outputs(m, res, truth, metrics, out, frames, ref_corners, save_frames, rerun,
-                          loop_model=parts.model)
-    files.append(out / "blur.npz")
-    files.extend(Path(f) for f in metrics.get("product", {}).get("files", ()))
-    if (out / "main_imager.png").exists() and sc.metrics.blur_images:
-        files.append(out / "main_imager.png")
-    info = {"wall_s": time.perf_counter() - t_start, "loop_s": t_loop - t_start,
+        files.extend(Path(f) for f in metrics["product"].get("files", ()))
+        if report_figures:
+            drawing.append(jobs.submit(write_quicklook, out))
+    if rerun:  # after the main imager's figure and the product: it shows them
+        drawing.append(jobs.submit(write_recording, out / "recording.rrd",
+                                   recording_data(m, res, truth, frames, ref_corners)))
+    write_json(out / "metrics.json", metrics)
+    files.append(out / "metrics.json")
+    for ticket in drawing:
+        if (path := jobs.result(ticket)) is not None:
+            files.append(Path(path))
+    info = {"loop_done": t_loop,
             "render_s": getattr(plant, "render_s", 0.0), "resumed_from_frame": resumed_from,
             "checkpoint_bytes": store.total_bytes(), "files": [str(f) for f in files]}
+    if drawn is not None:
+        info["figures"] = jobs.result(drawn)
     return metrics, info
 
 

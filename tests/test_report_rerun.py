@@ -100,3 +100,77 @@ def test_sweep_report_has_lines_and_heat_maps(tiny_run, tmp_path):
     assert len([f for f in figs if f.startswith("line_")]) == 6
     assert len([f for f in figs if f.startswith("heat_")]) == 3
     assert html.count("data:image/png;base64,") == 9 and "Extremes" in html
+
+
+# ------------------------------------------------------------------ the run's output jobs
+
+
+def _fails() -> None:
+    raise ValueError("this job fails")
+
+
+def _dies_in_a_helper() -> str:
+    import multiprocessing
+    import os
+
+    if multiprocessing.parent_process() is not None:
+        os._exit(3)
+    return "ran inline"
+
+
+@pytest.mark.parametrize("parallel", [False, True])
+def test_jobs_hand_back_results_and_failures_in_order(parallel):
+    from imc.outputs.jobs import make_jobs
+
+    jobs = make_jobs(parallel)
+    try:
+        ok, bad, later = jobs.submit(sum, [1, 2]), jobs.submit(_fails), jobs.submit(max, [4, 5])
+        assert jobs.result(ok) == 3
+        with pytest.raises(ValueError, match="this job fails"):
+            jobs.result(bad)
+        assert jobs.result(later) == 5
+    finally:
+        jobs.close()
+
+
+def test_a_job_whose_helper_died_runs_again_inline():
+    from imc.outputs.jobs import ProcessJobs
+
+    jobs = ProcessJobs()
+    try:
+        assert jobs.result(jobs.submit(_dies_in_a_helper)) == "ran inline"
+        assert jobs.result(jobs.submit(sum, [2, 2])) == 4  # the helper is gone: inline too
+    finally:
+        jobs.close()
+
+
+def test_a_helper_process_writes_what_inline_writes(tmp_path):
+    """The same metrics, report figures (byte for byte), main-imager figure and recording,
+    drawn on a helper process or in the run's own."""
+    import json
+
+    from imc.pipeline import run_scenario
+    from imc.scenario import parse_scenario
+
+    data = tiny_base()
+    data["metrics"].update(blur_images=True, blur_spp=4)
+    sc = parse_scenario(data)
+    runs = {p: run_scenario(sc, tmp_path / f"parallel_{p}", report_figures=True,
+                            parallel_outputs=p) for p in (False, True)}
+    (m_in, i_in), (m_out, i_out) = runs[False], runs[True]
+    # the closed-loop renders repeat to float32 rounding only (4e-8 relative), inline too
+    blur_in, blur_out = m_in.pop("main_imager_blur"), m_out.pop("main_imager_blur")
+    assert json.dumps(m_in, sort_keys=True) == json.dumps(m_out, sort_keys=True)
+    assert blur_in.keys() == blur_out.keys()
+    for key, v in blur_in.items():
+        assert v == pytest.approx(blur_out[key], rel=1e-6), key
+    names = [f.path.name for f in i_in["figures"]]
+    assert names == [f.path.name for f in i_out["figures"]] and "fig_psf.png" in names
+    assert sorted(Path(f).name for f in i_in["files"]) == sorted(
+        Path(f).name for f in i_out["files"])
+    for name in names:
+        a, b = (tmp_path / f"parallel_{p}" / name for p in (False, True))
+        assert a.read_bytes() == b.read_bytes(), name
+    for p in (False, True):
+        assert (tmp_path / f"parallel_{p}" / "main_imager.png").stat().st_size > 50_000
+        assert (tmp_path / f"parallel_{p}" / "recording.rrd").stat().st_size > 10_000

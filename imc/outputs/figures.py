@@ -334,10 +334,46 @@ def fig_frame(run_dir: Path, s: dict, tr: dict[str, np.ndarray]) -> Path | None:
     return save(fig, Path(run_dir) / "fig_frame.png")
 
 
-def run_figures(run_dir: Path) -> list[Figure]:
-    """Every figure a run's files allow, written into run_dir."""
+def fig_main_imager(path: Path, picture: dict) -> Path:
+    """main_imager.png: the rendered patches (static, open, closed loop), the worst
+    exposure's residual PSF open and closed, and the slanted-edge MTF; ``picture`` from
+    :func:`imc.wiring.blur.main_imager_study`."""
+    plt = _plt()
+    patches, nyquist = picture["patches"], picture["nyquist"]
+    fig, axes = plt.subplots(2, 3, figsize=(10.5, 7.2), dpi=110)
+    lo, hi = np.percentile(patches["static"], 1), np.percentile(patches["static"], 99)
+    for ax, (name, img) in zip(axes[0], patches.items(), strict=True):
+        ax.imshow(img, cmap="gray", vmin=lo, vmax=hi)
+        ax.set_title(name)
+        ax.axis("off")
+    for ax, key in ((axes[1][0], "open"), (axes[1][1], "closed")):
+        psf, bin_px = picture["psf"][key]
+        half = 0.5 * psf.shape[0] * bin_px
+        ax.imshow(psf, cmap="magma", extent=[-half, half, half, -half])
+        ax.set_title(f"residual PSF, {key} loop", fontsize=9)
+        ax.set_xlabel("col (px)")
+        ax.set_ylabel("row (px)")
+    ax = axes[1][2]
+    for name, (f, mtf) in picture["curves"].items():
+        ax.plot(f, mtf, label=f"{name} (edge)")
+    ax.plot(*picture["predicted_open"], "k:", label="predicted, open loop")
+    ax.axvline(nyquist, color="0.7", lw=0.8)
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1.05)
+    ax.set_xlabel("cycles/px (across the edge: rows)")
+    ax.set_title("slanted-edge MTF", fontsize=9)
+    ax.legend(fontsize=7)
+    fig.suptitle(picture["title"], fontsize=10)
+    fig.tight_layout()
+    return save(fig, Path(path))
+
+
+def draw_run_figures(run_dir: Path, metrics: dict | None = None) -> list[Figure]:
+    """The figures drawn from a run's data files (series.npz, blur.npz, tracks.csv), written
+    into run_dir; ``metrics`` (default: metrics.json) needs ``main_imager_blur`` only."""
     run_dir = Path(run_dir)
-    metrics = _load(run_dir, "metrics.json") or {}
+    if metrics is None:
+        metrics = _load(run_dir, "metrics.json") or {}
     s, rows, blur = (_load(run_dir, "series.npz"), _load(run_dir, "tracks.csv"),
                      _load(run_dir, "blur.npz"))
     figs: list[Figure] = []
@@ -360,6 +396,15 @@ def run_figures(run_dir: Path) -> list[Figure]:
         if s is not None and (p := fig_frame(run_dir, s, tr)) is not None:
             figs.append(Figure(p, "Tracker frame", "The middle tracker frame, the blocks "
                                "and each block's measured track, magnified."))
+    return figs
+
+
+def run_figures(run_dir: Path, drawn: Sequence[Figure] | None = None) -> list[Figure]:
+    """Every figure a run's files allow: ``drawn`` (what :func:`draw_run_figures` returned
+    for this run) or those drawn now, then main_imager.png and the loop study's figure when
+    they are there."""
+    run_dir = Path(run_dir)
+    figs = list(drawn) if drawn is not None else draw_run_figures(run_dir)
     if (run_dir / "main_imager.png").exists():
         figs.append(Figure(run_dir / "main_imager.png", "Main imager, rendered",
                            "The worst exposure rendered static, open and closed loop, and "

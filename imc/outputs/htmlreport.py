@@ -12,7 +12,7 @@ from pathlib import Path
 
 from imc.io import atomic_write, load_sweep_results
 from imc.outputs.figures import Figure, run_figures, sweep_figures
-from imc.outputs.product_report import product_html, write_quicklook
+from imc.outputs.product_report import product_html, quicklook_path, write_quicklook
 
 CSS = """
 body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;color:#222;padding:0 1em}
@@ -69,8 +69,10 @@ def expectations_html(outcomes: Sequence[dict]) -> str:
     return "<h2>Expectations</h2>" + _table(("metric", "expected", "value", "", "note"), rows)
 
 
-def write_run_report(run_dir: Path) -> Path:
-    """report.html and the figures (fig_*.png) of a run folder; returns the HTML's path."""
+def write_run_report(run_dir: Path, drawn: Sequence[Figure] | None = None) -> Path:
+    """report.html and the figures (fig_*.png) of a run folder; returns the HTML's path.
+    ``drawn``: the run's figures (and the product's quicklook) as the run drew them
+    (:func:`imc.outputs.figures.draw_run_figures`), else they are drawn now."""
     run_dir = Path(run_dir)
     m = json.loads((run_dir / "metrics.json").read_text())
     o, c = m["without_compensation"], m["with_compensation"]
@@ -115,13 +117,14 @@ def write_run_report(run_dir: Path) -> Path:
         parts.append(expectations_html(json.loads(exp.read_text())))
     if m.get("product"):
         parts.append(product_html(m, _table))
-        if (quick := write_quicklook(run_dir)) is not None:
+        quick = write_quicklook(run_dir) if drawn is None else quicklook_path(run_dir)
+        if quick is not None:
             parts.extend(_figures_html([Figure(quick, "The product, side by side", (
                 "The main imager's product static, open and closed loop, ground corrected "
                 "and restored (one grey scale), over each line's offset on the nominal grid: "
                 "the camera model's truth and the ground's estimate from the loop's "
                 "record."))]))
-    parts.extend(_figures_html(run_figures(run_dir)))
+    parts.extend(_figures_html(run_figures(run_dir, drawn)))
     out = run_dir / "report.html"
     page = _page(f"imcsim run: {m.get('scenario', run_dir.name)}", parts)
     atomic_write(out, lambda p: p.write_text(page, encoding="utf-8"))

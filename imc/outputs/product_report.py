@@ -12,6 +12,8 @@ import numpy as np
 
 from imc.io import atomic_write
 
+#: the product quicklook's file in the run's product/ folder
+QUICKLOOK = "quicklook.png"
 #: the products shown side by side, in the order a reader compares them
 SHOWN = ("static", "open", "closed", "open_gc", "closed_gc", "closed_gc_restored")
 TITLES = {"static": "static", "open": "open loop", "closed": "closed loop (stage)",
@@ -27,6 +29,12 @@ def _load(run_dir: Path) -> dict[str, np.ndarray] | None:
         return None
     with np.load(path) as z:
         return {k: z[k] for k in z.files}
+
+
+def quicklook_path(run_dir: Path) -> Path | None:
+    """product/quicklook.png of a run folder, None when it is not there."""
+    path = Path(run_dir) / "product" / QUICKLOOK
+    return path if path.exists() else None
 
 
 def write_quicklook(run_dir: Path) -> Path | None:
@@ -68,7 +76,7 @@ def write_quicklook(run_dir: Path) -> Path | None:
         ax.set_ylabel(f"{axis} offset (px)")
         ax.legend(fontsize=7)
     fig.tight_layout()
-    out = Path(run_dir) / "product" / "quicklook.png"
+    out = Path(run_dir) / "product" / QUICKLOOK
     atomic_write(out, lambda p: fig.savefig(p, format="png"), suffix=".png")
     plt.close(fig)
     return out

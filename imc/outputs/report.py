@@ -1,4 +1,4 @@
-"""What a run reports: metrics.json, tracks.csv, frames.npz and the Rerun recording."""
+"""What a run reports: the metrics (summarize), tracks.csv, series.npz and frames.npz."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 
 from compensation.loop import LoopResult
 from compensation.metrics import motion_mtf, residual_metrics
-from imc.io import write_csv, write_json, write_npz
+from imc.io import write_csv, write_npz
 from imc.wiring.advisories import advisories
 from imc.wiring.build import LoopParts, Models
 from imc.wiring.truth import Truth
@@ -210,11 +210,11 @@ def geometry_summary(m: Models) -> dict:
     return out
 
 
-def write_outputs(m: Models, res: LoopResult, truth: Truth, metrics: dict, out: Path,
-                  frames: np.ndarray | None, ref_corners: np.ndarray | None,
-                  save_frames: bool, rerun: bool = True, loop_model=None) -> list[Path]:
-    """metrics.json, tracks.csv, series.npz (for the report), recording.rrd and
-    (optionally) frames.npz, atomically."""
+def write_tables(m: Models, res: LoopResult, truth: Truth, out: Path,
+                 frames: np.ndarray | None, ref_corners: np.ndarray | None,
+                 save_frames: bool, loop_model=None) -> list[Path]:
+    """tracks.csv, series.npz (for the report and the recording) and (optionally)
+    frames.npz, atomically; metrics.json and the recording are the pipeline's."""
     out.mkdir(parents=True, exist_ok=True)
     rec = res.record
     written = []
@@ -236,8 +236,6 @@ def write_outputs(m: Models, res: LoopResult, truth: Truth, metrics: dict, out: 
               "crlb_col_px", "used", "outlier"]
     write_csv(out / "tracks.csv", header, rows)
     written.append(out / "tracks.csv")
-    write_json(out / "metrics.json", metrics)
-    written.append(out / "metrics.json")
     if save_frames and frames is not None:
         write_npz(out / "frames.npz", frames=frames, t_s=m.frame_t_s,
                   stage_offset_px=stage, ref_index=rec.ref_frame[:, 0],
@@ -247,9 +245,4 @@ def write_outputs(m: Models, res: LoopResult, truth: Truth, metrics: dict, out: 
     from imc.outputs.figures import write_series
 
     written.append(write_series(out, m, res, truth, loop_model, frames, ref_corners))
-    if rerun:
-        from imc.outputs.rerun_log import write_recording
-
-        write_recording(out / "recording.rrd", m, res, truth, frames, ref_corners)
-        written.append(out / "recording.rrd")
     return written

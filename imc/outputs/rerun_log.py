@@ -99,29 +99,39 @@ def _send_images(rec, rr, path: str, times: np.ndarray, imgs: np.ndarray) -> Non
                      columns=rr.Image.columns(buffer=imgs.reshape(n, -1)))
 
 
-def _log_tracker(rec, rr, m: Models, res: LoopResult, truth: Truth,
-                 frames: np.ndarray | None, ref_corners: np.ndarray | None) -> None:
+def _tracker_data(m: Models, res: LoopResult, truth: Truth, frames: np.ndarray | None,
+                  ref_corners: np.ndarray | None) -> dict:
+    """What the tracker's entities show, as arrays."""
     r = res.record
-    b = float(m.scenario.correlator.block_px)
     corners = ref_corners if ref_corners is not None else np.repeat(
         np.asarray(m.corners, float)[None], len(m.frame_t_s), axis=0)
-    n_t, n_b = len(m.frame_t_s), corners.shape[1]
-    if frames is not None:
-        _send_images(rec, rr, "tracker/frame", m.frame_t_s,
-                     np.stack([_gray_u8(f) for f in frames[:n_t]]))
+    n_t = len(m.frame_t_s)
+    return {"block_px": float(m.scenario.correlator.block_px), "frame_t_s": m.frame_t_s,
+            "frames_u8": (np.stack([_gray_u8(f) for f in frames[:n_t]])
+                          if frames is not None else None),
+            "corners": corners, "valid": r.valid, "shift_px": r.shift_px,
+            "error_px": r.shift_px - truth.meas_px, "sigma_px": r.sigma_px}
+
+
+def _log_tracker(rec, rr, d: dict) -> None:
+    b, frame_t = d["block_px"], d["frame_t_s"]
+    corners, valid, sigma = d["corners"], d["valid"], d["sigma_px"]
+    n_t, n_b = len(frame_t), corners.shape[1]
+    if d["frames_u8"] is not None:
+        _send_images(rec, rr, "tracker/frame", frame_t, d["frames_u8"])
     # the blocks: sizes and labels once, centres and colours (valid / invalid) per frame
     half = np.full((n_b, 2), b, np.float32) / 2.0
     rec.log("tracker/frame/blocks", rr.Boxes2D.from_fields(
         half_sizes=half, labels=[f"block {i}" for i in range(n_b)]), static=True)
     mins = corners[:n_t, :, ::-1].astype(np.float32) - 0.5
-    colors = np.where(r.valid[:n_t, :, None], [[40, 220, 80]], [[230, 40, 40]])
+    colors = np.where(valid[:n_t, :, None], [[40, 220, 80]], [[230, 40, 40]])
     rec.send_columns("tracker/frame/blocks",
-                     indexes=[rr.TimeColumn("time", duration=m.frame_t_s)],
+                     indexes=[rr.TimeColumn("time", duration=frame_t)],
                      columns=rr.Boxes2D.columns(
                          centers=(mins + half).reshape(-1, 2),
                          colors=colors.astype(np.uint8).reshape(-1, 3)).partition(
                              np.full(n_t, n_b)))
-    shift = np.where(r.valid[..., None], r.shift_px, np.nan)
+    shift = np.where(valid[..., None], d["shift_px"], np.nan)
     mag = max(1.0, round(0.25 * b / max(float(np.nanmax(np.abs(shift))), 1e-6)))
     centres = corners[0] + 0.5 * b
     strips = [(centres[j] + mag * np.nan_to_num(shift[:, j]))[:, ::-1] for j in range(n_b)]
@@ -129,14 +139,14 @@ def _log_tracker(rec, rr, m: Models, res: LoopResult, truth: Truth,
             rr.LineStrips2D(strips, labels=[f"block {j} track x{mag:g}" for j in range(n_b)],
                             radii=0.4), static=True)
     # per-block error against the CRLB
-    tcol = rr.TimeColumn("time", duration=m.frame_t_s[1:])
-    err = (r.shift_px - truth.meas_px)[1:]
-    ok = r.valid[1:]
+    tcol = rr.TimeColumn("time", duration=frame_t[1:])
+    err = d["error_px"][1:]
+    ok = valid[1:]
     for j in range(n_b):
         base = f"tracker/error/block_{j}"
         for i, a in enumerate(AXES):
             e = np.where(ok[:, j], err[:, j, i], np.nan)
-            s = np.where(ok[:, j], r.sigma_px[1:, j, i], np.nan)
+            s = np.where(ok[:, j], sigma[1:, j, i], np.nan)
             rec.log(f"{base}/{a}", rr.SeriesLines(names=f"{a} error", widths=1.2),
                     static=True)
             rec.send_columns(f"{base}/{a}", indexes=[tcol],
@@ -148,14 +158,12 @@ def _log_tracker(rec, rr, m: Models, res: LoopResult, truth: Truth,
                              columns=rr.Scalars.columns(scalars=np.stack([s, -s], axis=1)))
 
 
-def _log_motion(rec, rr, m: Models, res: LoopResult, series: dict) -> None:
-    from imc.outputs.figures import estimate_px
-
+def _log_motion(rec, rr, series: dict) -> None:
     t, mo, st = series["t_s"], series["motion_px"], series["stage_px"]
     fine = rr.TimeColumn("time", duration=t)
-    frame_t = rr.TimeColumn("time", duration=m.frame_t_s)
+    frame_t = rr.TimeColumn("time", duration=series["frame_t_s"])
     values = {"true": (fine, mo), "stage": (fine, st), "residual": (fine, mo - st),
-              "estimate": (frame_t, estimate_px(m, res))}
+              "estimate": (frame_t, series["estimate_px"])}
     for i, a in enumerate(AXES):
         for name in SERIES:
             tcol, v = values[name]
@@ -185,7 +193,7 @@ def _log_imager(rec, rr, out_dir: Path) -> bool:
     return False
 
 
-def _terrain_mesh(rr, m: Models, n_max: int = 64):
+def _terrain_mesh(m: Models, n_max: int = 64) -> dict:
     ter = m.terrain
     w, h = ter.size_m
     dem = ter.dem_m
@@ -203,8 +211,8 @@ def _terrain_mesh(rr, m: Models, n_max: int = 64):
     i = np.arange(nr - 1)[:, None] * nc + np.arange(nc - 1)[None, :]
     tris = np.concatenate([np.stack([i, i + nc, i + 1], -1).reshape(-1, 3),
                            np.stack([i + 1, i + nc, i + nc + 1], -1).reshape(-1, 3)])
-    return rr.Mesh3D(vertex_positions=verts, triangle_indices=tris,
-                     vertex_colors=np.repeat(alb.reshape(-1, 1), 3, axis=1))
+    return {"vertex_positions": verts, "triangle_indices": tris,
+            "vertex_colors": np.repeat(alb.reshape(-1, 1), 3, axis=1)}
 
 
 def _ground_points(cam, pixel_rc: np.ndarray, t_s: np.ndarray, height_fn,
@@ -230,28 +238,36 @@ def _footprint(cam, t_s: np.ndarray, height_fn) -> np.ndarray:
     return _ground_points(cam, c - 0.5, t_s, height_fn)
 
 
-def _log_world(rec, rr, m: Models) -> None:
-    rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)  # ENU
-    rec.log("world/terrain", _terrain_mesh(rr, m), static=True)
+def _world_data(m: Models) -> dict:
+    """What the 3-D view shows (ENU m), as arrays."""
     cam, hfn = m.camera, m.terrain.height_at
     end = float(m.frame_t_s[-1] + m.exposure_s)
     arc_t = np.linspace(-ARC_S, end + ARC_S, 241)
-    rec.log("world/orbit", rr.LineStrips3D([cam.pose(arc_t).position_m],
-                                           colors=[(200, 200, 255)],
-                                           labels=[f"orbit, +-{ARC_S:g} s"]), static=True)
     times = np.linspace(0.0, end, min(MAX_POSES, len(m.frame_t_s) + 1))
-    pos = cam.pose(times).position_m
-    ground = _ground_points(cam, cam.focal_plane.center_px[None], times, hfn)[:, 0]
+    return {"terrain": _terrain_mesh(m), "orbit_m": cam.pose(arc_t).position_m,
+            "times_s": times, "satellite_m": cam.pose(times).position_m,
+            "ground_m": _ground_points(cam, cam.focal_plane.center_px[None], times, hfn)[:, 0],
+            "footprint_tracker_m": _footprint(cam, times, hfn),
+            "footprint_main_imager_m": _footprint(m.main_camera, times, hfn)}
+
+
+def _log_world(rec, rr, d: dict) -> None:
+    rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)  # ENU
+    rec.log("world/terrain", rr.Mesh3D(**d["terrain"]), static=True)
+    rec.log("world/orbit", rr.LineStrips3D([d["orbit_m"]], colors=[(200, 200, 255)],
+                                           labels=[f"orbit, +-{ARC_S:g} s"]), static=True)
+    pos = d["satellite_m"]
     # each path's style once (static), its geometry per time step as one column
-    tcol = rr.TimeColumn("time", duration=times)
+    tcol = rr.TimeColumn("time", duration=d["times_s"])
     rec.log("world/satellite", rr.Points3D.from_fields(
         radii=[2000.0], colors=[(255, 220, 80)], labels=["satellite"]), static=True)
     rec.send_columns("world/satellite", indexes=[tcol],
                      columns=rr.Points3D.columns(positions=pos))
-    strips = {"world/line_of_sight": (np.stack([pos, ground], axis=1), (255, 120, 60), None),
-              "world/footprint/tracker": (_footprint(cam, times, hfn), (60, 230, 120),
+    strips = {"world/line_of_sight": (np.stack([pos, d["ground_m"]], axis=1),
+                                      (255, 120, 60), None),
+              "world/footprint/tracker": (d["footprint_tracker_m"], (60, 230, 120),
                                           "tracker"),
-              "world/footprint/main_imager": (_footprint(m.main_camera, times, hfn),
+              "world/footprint/main_imager": (d["footprint_main_imager_m"],
                                               (80, 160, 255), "main imager")}
     for path, (xyz, color, label) in strips.items():
         rec.log(path, rr.LineStrips3D.from_fields(
@@ -260,36 +276,41 @@ def _log_world(rec, rr, m: Models) -> None:
                          columns=rr.LineStrips3D.columns(strips=list(xyz)))
 
 
-def write_recording(path: Path, m: Models, res: LoopResult, truth: Truth,
-                    frames: np.ndarray | None, ref_corners: np.ndarray | None) -> None:
-    """Write ``recording.rrd`` (atomically) with its default blueprint; open it with
-    ``imc view OUT`` or ``rerun recording.rrd``. Reads series.npz, blur.npz and
-    main_imager.png beside it when they are there."""
+def recording_data(m: Models, res: LoopResult, truth: Truth, frames: np.ndarray | None,
+                   ref_corners: np.ndarray | None) -> dict:
+    """Everything the recording shows beyond the files of the run folder, as arrays (numpy
+    only, picklable: :func:`write_recording` may run on a helper process)."""
+    from imc.outputs.figures import estimate_px, uniform_motion
+
+    t, mo, st = uniform_motion(m, res.trajectory)
+    return {"name": m.scenario.name, "n_blocks": int(res.record.shift_px.shape[1]),
+            "tracker": _tracker_data(m, res, truth, frames, ref_corners),
+            "series": {"t_s": t, "motion_px": mo, "stage_px": st, "frame_t_s": m.frame_t_s,
+                       "estimate_px": estimate_px(m, res)},
+            "world": _world_data(m)}
+
+
+def write_recording(path: Path, data: dict) -> Path:
+    """Write ``recording.rrd`` (atomically) with its default blueprint from
+    :func:`recording_data` and the blur.npz, main_imager.png and product files beside it;
+    open it with ``imc view OUT`` or ``rerun recording.rrd``. Returns its path."""
     import rerun as rr
 
-    from imc.outputs.figures import uniform_motion
-
     path = Path(path)
-    s_path = path.parent / "series.npz"
-    if s_path.exists():
-        with np.load(s_path) as z:
-            series = {k: z[k] for k in ("t_s", "motion_px", "stage_px")}
-    else:
-        t, mo, st = uniform_motion(m, res.trajectory)
-        series = {"t_s": t, "motion_px": mo, "stage_px": st}
     has_render = (path.parent / "main_imager.png").exists()
     has_product = (path.parent / "product" / "product.npz").exists()
-    bp = blueprint(res.record.shift_px.shape[1], has_render, has_product)
+    bp = blueprint(data["n_blocks"], has_render, has_product)
 
     def write(tmp: Path) -> None:
-        rec = rr.RecordingStream(APP_ID, recording_id=m.scenario.name)
+        rec = rr.RecordingStream(APP_ID, recording_id=data["name"])
         rec.save(str(tmp), default_blueprint=bp)
-        _log_tracker(rec, rr, m, res, truth, frames, ref_corners)
-        _log_motion(rec, rr, m, res, series)
+        _log_tracker(rec, rr, data["tracker"])
+        _log_motion(rec, rr, data["series"])
         _log_imager(rec, rr, path.parent)
         log_product(rec, rr, path.parent)
-        _log_world(rec, rr, m)
+        _log_world(rec, rr, data["world"])
         rec.flush()
         rec.disconnect()
 
     atomic_write(path, write, suffix=".rrd")
+    return path

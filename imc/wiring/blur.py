@@ -7,7 +7,8 @@ position (a 2-D histogram); its MTF is |mean_t exp(-2 pi i f . r(t))| (Wulich & 
 straight-line fit, every pixel binned at a quarter pixel by its distance to the edge (the
 edge spread function), its derivative (line spread), a Hamming window, the FFT, corrected for
 the finite difference. The prediction is the static render's edge MTF (optics, pixel,
-reconstruction filter) times the residual's motion MTF along the edge normal.
+reconstruction filter) times the residual's motion MTF along the edge normal. The arrays
+only: main_imager.png is drawn from them by :func:`imc.outputs.figures.fig_main_imager`.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import numpy as np
 from compensation.loop import Trajectory
 from compensation.metrics import NYQUIST, motion_mtf
 from ground.quality import ESF_HALF_PX, edge_mtf, value_at
-from imc.io import atomic_write, write_npz
+from imc.io import write_npz
 from imc.wiring.build import Models
 from imc.wiring.truth import Truth
 
@@ -38,6 +39,8 @@ EDGE_MARGIN_PX = 8
 #: the edge spread function reads, for the motion during the exposure
 EDGE_ANGLE_DEG = 5.0
 EDGE_SLACK_PX = 8
+#: rows of the edge tile's albedo computed at a time
+EDGE_BAND_ROWS = 256
 
 
 def psf_image(r_px: np.ndarray, half_px: float, bin_px: float = PSF_BIN_PX) -> np.ndarray:
@@ -121,9 +124,15 @@ def edge_terrain(m: Models, angle_deg: float = EDGE_ANGLE_DEG, albedo=(0.15, 0.6
     n = int(round(size_m / texel_m))
     xs = (np.arange(n) + 0.5) * texel_m - size_m / 2
     # the signed distance east * normal_e + north * normal_n on the (north, east) grid, row 0
-    # the north edge, as an outer sum (the same sums as on two meshgrids, without them)
-    d = np.add.outer(-xs * normal[1], xs * normal[0]) - float(through @ normal)
-    alb = np.where(d > 0, albedo[1], albedo[0]).astype(np.float64, copy=False)
+    # the north edge, as an outer sum (the same sums as on two meshgrids, without them), a
+    # band of rows at a time into float32 (what the renderer's texture holds): no 80 MB
+    # float64 temporaries to page in
+    north_d, east_d, offset = -xs * normal[1], xs * normal[0], float(through @ normal)
+    alb = np.empty((n, n), np.float32)
+    lo, hi = np.float32(albedo[0]), np.float32(albedo[1])
+    for r0 in range(0, n, EDGE_BAND_ROWS):
+        d = np.add.outer(north_d[r0:r0 + EDGE_BAND_ROWS], east_d) - offset
+        alb[r0:r0 + EDGE_BAND_ROWS] = np.where(d > 0, hi, lo)
     spacing = size_m / 40.0
     return Terrain(alb, texel_m, np.zeros((41, 41)), spacing)
 
@@ -158,20 +167,16 @@ def render_patch(m: Models, renderer, t0_s: float, t1_s: float,
     return m.optics.apply(img)
 
 
-def main_imager_study(m: Models, trajectory: Trajectory, truth: Truth, out: Path,
-                      spp: int = 64, size_px: int = 192) -> dict:
-    """Render the main imager's worst exposure (open loop) as a patch of the scene and of a
-    slanted edge: static, open and closed loop; measure the edge MTF at Nyquist against the
-    prediction; write blur.npz and main_imager.png."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+def main_imager_study(m: Models, trajectory: Trajectory, truth: Truth,
+                      blurs: tuple[dict, dict], figures: dict, spp: int = 64,
+                      size_px: int = 192) -> tuple[dict, dict]:
+    """Render the main imager's worst exposure (open loop; ``figures`` from
+    :func:`write_blur_npz`, ``blurs`` the open and closed :func:`window_blur`) as a patch of
+    the scene and of a slanted edge: static, open and closed loop; measure the edge MTF at
+    Nyquist against the prediction. Returns (the figures for metrics.json, the picture's
+    arrays for :func:`imc.outputs.figures.fig_main_imager`)."""
     from scene.kernel import Renderer, Sun
 
-    blurs = {"open_psf": window_blur(truth, None), "closed_psf": window_blur(truth, trajectory)}
-    figures = write_blur_npz(out / "blur.npz", truth, trajectory, tuple(blurs.values()))
     w = figures["worst_window"]
     t0 = figures["worst_window_start_s"]
     t1 = t0 + truth.window_s
@@ -206,34 +211,11 @@ def main_imager_study(m: Models, trajectory: Trajectory, truth: Truth, out: Path
     result["edge_mtf_nyquist_static"] = value_at(f_static, mtf_static, NYQUIST)
     result["optics_mtf_nyquist"] = float(m.optics.mtf(NYQUIST))
     result.update(figures)
-
-    fig, axes = plt.subplots(2, 3, figsize=(10.5, 7.2), dpi=110)
-    for ax, (name, img) in zip(axes[0], patches.items(), strict=True):
-        ax.imshow(img, cmap="gray", vmin=np.percentile(patches["static"], 1),
-                  vmax=np.percentile(patches["static"], 99))
-        ax.set_title(name)
-        ax.axis("off")
-    for ax, key, title in ((axes[1][0], "open_psf", "residual PSF, open loop"),
-                           (axes[1][1], "closed_psf", "residual PSF, closed loop")):
-        psf = blurs[key]["psf"]
-        half = 0.5 * psf.shape[1] * float(blurs[key]["psf_bin_px"])
-        ax.imshow(psf[w], cmap="magma", extent=[-half, half, half, -half])
-        ax.set_title(title, fontsize=9)
-        ax.set_xlabel("col (px)")
-        ax.set_ylabel("row (px)")
-    ax = axes[1][2]
-    for name, (f, mtf) in curves.items():
-        ax.plot(f, mtf, label=f"{name} (edge)")
-    ax.plot(f_static, mtf_static * motions["open loop"], "k:", label="predicted, open loop")
-    ax.axvline(NYQUIST, color="0.7", lw=0.8)
-    ax.set_xlim(0, 1)
-    ax.set_ylim(0, 1.05)
-    ax.set_xlabel("cycles/px (across the edge: rows)")
-    ax.set_title("slanted-edge MTF", fontsize=9)
-    ax.legend(fontsize=7)
-    fig.suptitle(f"{m.scenario.name}: main imager, exposure {t0:.2f}-{t1:.2f} s "
-                 f"(the worst open-loop one)", fontsize=10)
-    fig.tight_layout()
-    atomic_write(out / "main_imager.png", lambda p: fig.savefig(p, format="png"))
-    plt.close(fig)
-    return result
+    picture = {"title": f"{m.scenario.name}: main imager, exposure {t0:.2f}-{t1:.2f} s "
+                        "(the worst open-loop one)",
+               "patches": patches, "curves": curves,
+               "psf": {key: (blur["psf"][w], float(blur["psf_bin_px"]))
+                       for key, blur in zip(("open", "closed"), blurs, strict=True)},
+               "predicted_open": (f_static, mtf_static * motions["open loop"]),
+               "nyquist": NYQUIST}
+    return result, picture

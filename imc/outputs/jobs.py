@@ -1,0 +1,128 @@
+"""Where a run's drawing and recording jobs run: inline, or on one helper process.
+
+The figures (matplotlib) and the Rerun recording need nothing of the renderer, only arrays
+and the files already in the run folder, and their imports alone take ~0.9 s. On a helper
+process started with the run (``spawn``: a fresh interpreter, no fork of the renderer's
+threads) those imports overlap the loop, and the drawing overlaps the main imager's renders
+in the main process. :class:`InlineJobs` runs each job when it is submitted, in order: what
+sweeps and tests use (a sweep's workers are already parallel). Both give the same files.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+
+class Jobs(Protocol):
+    """Runs jobs (picklable functions of picklable arguments) and hands back their results."""
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> int:
+        """Queue ``fn(*args)``; returns its ticket for :meth:`result`."""
+
+    def result(self, ticket: int) -> Any:
+        """The job's return value (waiting for it); re-raises what it raised."""
+
+    def close(self) -> None:
+        """Wait for what is queued (its failures are for :meth:`result`) and stop."""
+
+
+@dataclass
+class InlineJobs:
+    """Each job runs in this process when it is submitted."""
+
+    _done: list[tuple[bool, Any]] = field(default_factory=list)
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> int:
+        try:
+            self._done.append((True, fn(*args)))
+        except Exception as e:  # kept for result(), as a helper process would
+            self._done.append((False, e))
+        return len(self._done) - 1
+
+    def result(self, ticket: int) -> Any:
+        ok, value = self._done[ticket]
+        if not ok:
+            raise value
+        return value
+
+    def close(self) -> None:
+        pass
+
+
+def _warm() -> None:
+    """The helper's imports and first drawing (fonts, the Agg canvas, the PNG writer), made
+    while the main process runs the loop; and its exit without a teardown (what it writes
+    is written atomically and its results are sent when each job ends)."""
+    import atexit
+    import io
+    import os
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    import rerun  # noqa: F401
+    import scipy.fft  # noqa: F401  (the figures' spectra)
+    import scipy.linalg  # noqa: F401
+
+    import imc.outputs.figures  # noqa: F401
+    import imc.outputs.rerun_log  # noqa: F401
+
+    fig, ax = plt.subplots(figsize=(2, 2), dpi=50)
+    ax.imshow(np.zeros((4, 4)), cmap="gray")
+    ax.semilogy([1.0, 2.0], [1.0, 10.0], label="warm")
+    ax.legend()
+    ax.set_title("warm")
+    fig.tight_layout()
+    fig.savefig(io.BytesIO(), format="png")
+    plt.close(fig)
+    atexit.register(os._exit, 0)  # runs first: the imports' own exit handlers are older
+
+
+def _ready() -> bool:
+    return True
+
+
+class ProcessJobs:
+    """Jobs on one helper process, in the order submitted; a job the helper could not finish
+    because the process died is run again inline."""
+
+    def __init__(self) -> None:
+        import multiprocessing
+
+        self._pool = ProcessPoolExecutor(max_workers=1, initializer=_warm,
+                                         mp_context=multiprocessing.get_context("spawn"))
+        self._jobs: list[tuple[Callable[..., Any], tuple, Future]] = []
+        self._pool.submit(_ready)  # start the helper (and its imports) now
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> int:
+        try:
+            fut = self._pool.submit(fn, *args)
+        except (BrokenProcessPool, RuntimeError):  # the helper is gone: run it here
+            fut = Future()
+            try:
+                fut.set_result(fn(*args))
+            except Exception as e:
+                fut.set_exception(e)
+        self._jobs.append((fn, args, fut))
+        return len(self._jobs) - 1
+
+    def result(self, ticket: int) -> Any:
+        fn, args, fut = self._jobs[ticket]
+        try:
+            return fut.result()
+        except BrokenProcessPool:
+            return fn(*args)
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=False)
+
+
+def make_jobs(parallel: bool) -> Jobs:
+    """:class:`ProcessJobs` when ``parallel``, else :class:`InlineJobs`."""
+    return ProcessJobs() if parallel else InlineJobs()

@@ -219,6 +219,22 @@ def test_600_s_at_100_khz_is_refused_before_anything_is_built(tmp_path):
     assert "60,000,000 frames" in proc.stderr and "--force" in proc.stderr
 
 
+@pytest.mark.parametrize("argv, code, words", [
+    (["validate", "QUICKSTART"], 0, "terrain not built"),  # its last line, through a pipe
+    (["run"], 2, "Missing argument"),
+    (["metrics", "/nonexistent"], 2, "not found"),
+])
+def test_the_console_entry_keeps_exit_status_and_output(argv, code, words):
+    """`imc` ends validate, run, metrics ... without the interpreter's teardown: the exit
+    status and everything printed are kept."""
+    argv = [str(QUICKSTART) if a == "QUICKSTART" else a for a in argv]
+    proc = subprocess.run([sys.executable, "-c", "import sys; from imc.cli import entry; "
+                           f"sys.argv = ['imc', *{argv!r}]; entry()"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == code, proc.stderr
+    assert words in (proc.stdout + proc.stderr) and "Traceback" not in proc.stderr
+
+
 def test_the_largest_tile_is_refused_with_the_estimate(tmp_path, monkeypatch):
     import imc.wiring.budget
 

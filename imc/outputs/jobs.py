@@ -54,9 +54,10 @@ class InlineJobs:
 
 
 def _warm() -> None:
-    """The helper's imports and first drawing (fonts, the Agg canvas, the PNG writer), made
-    while the main process runs the loop; and its exit without a teardown (what it writes
-    is written atomically and its results are sent when each job ends)."""
+    """The helper's imports, its first drawing (fonts, the Agg canvas, the PNG writer) and
+    first recording, made while the main process runs the loop; and its exit without a
+    teardown (what it writes is written atomically and its results are sent when each job
+    ends)."""
     import atexit
     import io
     import os
@@ -71,7 +72,9 @@ def _warm() -> None:
     import scipy.linalg  # noqa: F401
 
     import imc.outputs.figures  # noqa: F401
-    import imc.outputs.rerun_log  # noqa: F401
+    from imc.outputs.rerun_log import warm_up
+
+    warm_up()
 
     fig, ax = plt.subplots(figsize=(2, 2), dpi=50)
     ax.imshow(np.zeros((4, 4)), cmap="gray")

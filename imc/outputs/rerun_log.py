@@ -314,3 +314,28 @@ def write_recording(path: Path, data: dict) -> Path:
 
     atomic_write(path, write, suffix=".rrd")
     return path
+
+
+def warm_up() -> None:
+    """Write a recording of two frames, one block, into a temporary folder: Rerun's first
+    use (its file sink, the archetypes' converters, the blueprint) costs ~0.25 s, which a
+    helper process spends while the loop runs (:mod:`imc.outputs.jobs`)."""
+    import tempfile
+
+    two = np.array([0.0, 0.01])
+    zeros = np.zeros((2, 1, 2))
+    data = {"name": "warm-up", "n_blocks": 1,
+            "tracker": {"block_px": 8.0, "frame_t_s": two,
+                        "frames_u8": np.zeros((2, 4, 4), np.uint8), "corners": zeros,
+                        "valid": np.ones((2, 1), bool), "shift_px": zeros, "error_px": zeros,
+                        "sigma_px": zeros + 0.1},
+            "series": {"t_s": two, "motion_px": np.zeros((2, 2)), "stage_px": np.zeros((2, 2)),
+                       "frame_t_s": two, "estimate_px": np.zeros((2, 2))},
+            "world": {"terrain": {"vertex_positions": np.eye(3),
+                                  "triangle_indices": np.array([[0, 1, 2]]),
+                                  "vertex_colors": np.zeros((3, 3), np.uint8)},
+                      "orbit_m": np.ones((2, 3)), "times_s": two, "satellite_m": np.ones((2, 3)),
+                      "ground_m": np.zeros((2, 3)), "footprint_tracker_m": np.zeros((2, 5, 3)),
+                      "footprint_main_imager_m": np.zeros((2, 5, 3))}}
+    with tempfile.TemporaryDirectory(prefix="imc-warm-") as folder:
+        write_recording(Path(folder) / "recording.rrd", data)

@@ -15,7 +15,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-if TYPE_CHECKING:  # the wiring asks this module when it refuses a design
+from imc.wiring.device_budget import budget_warning, correlator_budget
+
+if TYPE_CHECKING:
     from imc.wiring.build import LoopParts, Models
 
 #: the settling band of the analytic lock time, a fraction of a step of the disturbance
@@ -59,43 +61,6 @@ def lock_warning(m: Models, lock: dict) -> str | None:
                 "compensation.controller.window_s): lines it was not told of are not "
                 "rejected before then")
     return None
-
-
-def correlator_budget(m: Models) -> dict:
-    """Correlations per second the scenario asks for (blocks x tracker frame rate) against
-    what the configured device delivers (None: no device model, every pair is correlated),
-    the frames the device measures and the effective measurement rate, Hz."""
-    n_blocks = len(m.corners)
-    asked = n_blocks * m.rate_hz
-    out = {"asked_per_s": float(asked), "device_per_s": None,
-           "frames_measured": int(len(m.frame_t_s)), "frames_skipped": 0,
-           "measurement_rate_hz": float(m.rate_hz)}
-    if m.schedule is None:
-        return out
-    done = m.schedule.done
-    measured = done.any(axis=1)
-    out["device_per_s"] = float(m.timing.correlations_per_s)
-    out["frames_measured"] = int(measured.sum())
-    out["frames_skipped"] = int((~measured).sum())
-    out["pairs_dropped"] = int((~done).sum())
-    duration = len(m.frame_t_s) / m.rate_hz
-    out["measurement_rate_hz"] = float(measured.sum() / duration)
-    return out
-
-
-def budget_warning(m: Models, budget: dict) -> str | None:
-    """One line when the correlator is asked for more than its device delivers."""
-    device = budget["device_per_s"]
-    if device is None or budget["asked_per_s"] <= device * (1.0 + 1e-9):
-        return None
-    n = len(m.corners)
-    total = budget["frames_measured"] + budget["frames_skipped"]
-    return (f"correlator.timing: the run asks for {budget['asked_per_s']:g} correlations/s "
-            f"({n} blocks x {m.rate_hz:g} frames/s) and the device delivers "
-            f"{device:.3g}/s: {budget['pairs_dropped']} block pairs dropped, "
-            f"{budget['frames_skipped']} of {total} frames not measured, an effective "
-            f"{budget['measurement_rate_hz']:.3g} measurements/s; lower correlator.n_blocks or "
-            "camera.tracker.frame_rate_hz, or a faster device (correlator.timing)")
 
 
 def advisories(m: Models, parts: LoopParts) -> tuple[dict, list[str]]:

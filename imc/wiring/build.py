@@ -24,6 +24,7 @@ from correlator.tracker import BlockTracker, block_grid
 from imc.scenario import CloudsConfig, Scenario, ScenarioError
 from imc.wiring import streams
 from imc.wiring.budget import LIGHT_TEXELS
+from imc.wiring.device_budget import budget_warning, correlator_budget
 from orbit.aircraft import Aircraft, AircraftAttitude
 from orbit.attitude import Attitude, orbit_looking_at
 from orbit.frames import LocalFrame
@@ -473,8 +474,6 @@ def build_loop(m: Models, channel=None, plant_sigma_px: float | None = None) -> 
         try:
             _check_margins(comp, margins, getattr(controller, "TUNING", "kind"))
         except ScenarioError as e:  # say too when the correlator cannot keep up with the run
-            from imc.wiring.advisories import budget_warning, correlator_budget
-
             over = budget_warning(m, correlator_budget(m))
             raise ScenarioError(f"{e}; and {over}" if over else str(e)) from None
     return LoopParts(estimator, controller, actuator, transport, timeline, model, margins,

@@ -144,6 +144,28 @@ def test_a_job_whose_helper_died_runs_again_inline():
         jobs.close()
 
 
+def _jobs_in_a_daemon(queue) -> None:
+    from imc.outputs.jobs import make_jobs
+
+    jobs = make_jobs(True)
+    queue.put((type(jobs).__name__, jobs.result(jobs.submit(sum, [1, 2]))))
+    jobs.close()
+
+
+def test_jobs_in_a_process_that_may_not_start_one_run_inline():
+    """A pool's worker (a daemonic process) may not start a helper: the jobs run inline."""
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("spawn")
+    queue = ctx.Queue()
+    proc = ctx.Process(target=_jobs_in_a_daemon, args=(queue,), daemon=True)
+    proc.start()
+    try:
+        assert queue.get(timeout=120) == ("InlineJobs", 3)
+    finally:
+        proc.join(timeout=60)
+
+
 def test_a_helper_process_writes_what_inline_writes(tmp_path):
     """The same metrics, report figures (byte for byte), main-imager figure and recording,
     drawn on a helper process or in the run's own."""

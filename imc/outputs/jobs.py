@@ -101,7 +101,11 @@ class ProcessJobs:
         self._pool = ProcessPoolExecutor(max_workers=1, initializer=_warm,
                                          mp_context=multiprocessing.get_context("spawn"))
         self._jobs: list[tuple[Callable[..., Any], tuple, Future]] = []
-        self._pool.submit(_ready)  # start the helper (and its imports) now
+        try:
+            self._pool.submit(_ready)  # start the helper (and its imports) now
+        except BaseException:
+            self._pool.shutdown(wait=False)
+            raise
 
     def submit(self, fn: Callable[..., Any], *args: Any) -> int:
         try:
@@ -127,5 +131,12 @@ class ProcessJobs:
 
 
 def make_jobs(parallel: bool) -> Jobs:
-    """:class:`ProcessJobs` when ``parallel``, else :class:`InlineJobs`."""
-    return ProcessJobs() if parallel else InlineJobs()
+    """:class:`ProcessJobs` when ``parallel`` and a helper process can be started here,
+    else :class:`InlineJobs` (a daemonic process, such as a pool's worker, may not start
+    one; nor may a system without the semaphores multiprocessing needs)."""
+    if not parallel:
+        return InlineJobs()
+    try:
+        return ProcessJobs()
+    except (AssertionError, OSError, ImportError, RuntimeError):
+        return InlineJobs()

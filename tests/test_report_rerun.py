@@ -166,6 +166,36 @@ def test_jobs_in_a_process_that_may_not_start_one_run_inline():
         proc.join(timeout=60)
 
 
+def test_a_killed_run_leaves_no_helper_behind():
+    """SIGKILL the process that started the helper: the helper ends too (within seconds)."""
+    import os
+    import signal
+    import time
+
+    code = ("import time; from imc.outputs.jobs import ProcessJobs\n"
+            "jobs = ProcessJobs(); jobs.result(jobs.submit(sum, [1]))\n"
+            "print(*jobs._pool._processes, flush=True); time.sleep(120)")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        helper = int(proc.stdout.readline())
+        os.kill(helper, 0)  # it runs
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+    for _ in range(100):
+        try:
+            os.kill(helper, 0)
+        except ProcessLookupError:
+            return
+        # a zombie awaits its reaper (init): it has ended all the same
+        with open(f"/proc/{helper}/stat") as f:
+            if f.read().rsplit(")", 1)[1].split()[0] == "Z":
+                return
+        time.sleep(0.1)
+    os.kill(helper, signal.SIGKILL)
+    raise AssertionError("the helper outlived its parent by 10 s")
+
+
 def test_a_helper_process_writes_what_inline_writes(tmp_path):
     """The same metrics, report figures (byte for byte), main-imager figure and recording,
     drawn on a helper process or in the run's own."""

@@ -53,6 +53,26 @@ class InlineJobs:
         pass
 
 
+def _exit_with_parent() -> None:
+    """End this helper when the process that started it ends, however it ends (a killed
+    run would otherwise leave its helper waiting on its queue for ever): a thread waits
+    on the parent's sentinel, which multiprocessing keeps open for the parent's lifetime."""
+    import multiprocessing
+    import os
+    import threading
+    from multiprocessing.connection import wait
+
+    parent = multiprocessing.parent_process()
+    if parent is None:
+        return
+
+    def watch() -> None:
+        wait([parent.sentinel])
+        os._exit(1)
+
+    threading.Thread(target=watch, name="imc-helper-parent-watch", daemon=True).start()
+
+
 def _warm() -> None:
     """The helper's imports, its first drawing (fonts, the Agg canvas, the PNG writer) and
     first recording, made while the main process runs the loop; and its exit without a
@@ -62,6 +82,7 @@ def _warm() -> None:
     import io
     import os
 
+    _exit_with_parent()
     import matplotlib
 
     matplotlib.use("Agg")

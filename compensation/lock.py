@@ -146,9 +146,10 @@ class RunLock:
         within the band (nan: it never does).
     steady_rms_px : RMS of the residual's steady state (the last ``steady_fraction`` of the
         samples, or from ``steady_from_s``).
-    threshold_px : (1 + band) * steady_rms_px + spread_sigmas * spread_px + floor_px.
-    band, window_s, floor_px, spread_sigmas : as given.
-    spread_px : standard deviation of the running RMS over the steady state.
+    threshold_px : (1 + band) * steady_rms_px + noise_sigmas * scatter_px + floor_px.
+    band, window_s, floor_px, noise_sigmas : as given.
+    scatter_px : the running RMS's sampling scatter for independent samples,
+        steady_rms_px / sqrt(2 d n) (d axes, n samples a window).
     """
 
     lock_s: float
@@ -157,8 +158,8 @@ class RunLock:
     band: float
     window_s: float
     floor_px: float
-    spread_sigmas: float = 0.0
-    spread_px: float = 0.0
+    noise_sigmas: float = 0.0
+    scatter_px: float = 0.0
 
     def to_dict(self) -> dict:
         return json_dict(self)
@@ -178,7 +179,7 @@ def running_rms(t_s: np.ndarray, r_px: np.ndarray, window_s: float) -> np.ndarra
 
 def run_lock_time(t_s: np.ndarray, r_px: np.ndarray, window_s: float, band: float = 0.25,
                   steady_fraction: float = 0.25, steady_from_s: float | None = None,
-                  floor_px: float = 0.0, spread_sigmas: float = 0.0) -> RunLock:
+                  floor_px: float = 0.0, noise_sigmas: float = 0.0) -> RunLock:
     """Lock time of a run's residual r (N, 2) (or (N,)) sampled at increasing t_s (N,).
 
     window_s : the running RMS's trailing window, s (e.g. a few periods of the slowest
@@ -188,11 +189,13 @@ def run_lock_time(t_s: np.ndarray, r_px: np.ndarray, window_s: float, band: floa
         steady_from_s overrides it with a start time.
     floor_px : an absolute allowance added to the threshold (for residuals at the noise
         floor, where a fraction of a tiny RMS is below what matters).
-    spread_sigmas : the running RMS's own spread over the steady state allowed, in its
-        standard deviations (>= 0). A window of n samples of a noise-like residual measures
-        its RMS to ~1 / sqrt(2 n) relatively (22 % at 10 samples), so a band of 25 % alone
-        is crossed by chance in the steady state and the run never "locks"; 3 allows that
-        spread and no more.
+    noise_sigmas : the running RMS's own sampling scatter allowed, in its standard
+        deviations (>= 0). A window of n independent samples of a noise-like residual on d
+        axes measures its RMS to 1 / sqrt(2 d n) relatively (16 % at 10 samples on 2 axes),
+        so a band of 25 % alone is crossed by chance in the steady state and the run never
+        "locks"; 3 allows that scatter. It follows from n and d alone, not from the data, so
+        a residual that grows to the end still never locks; a coloured residual (fewer
+        independent samples) scatters more than it allows.
     """
     t = np.asarray(t_s, dtype=np.float64)
     r = np.asarray(r_px, dtype=np.float64)
@@ -206,8 +209,8 @@ def run_lock_time(t_s: np.ndarray, r_px: np.ndarray, window_s: float, band: floa
         raise ValueError(f"band must be >= 0, got {band}")
     if not floor_px >= 0:
         raise ValueError(f"floor_px must be >= 0, got {floor_px}")
-    if not spread_sigmas >= 0:
-        raise ValueError(f"spread_sigmas must be >= 0, got {spread_sigmas}")
+    if not noise_sigmas >= 0:
+        raise ValueError(f"noise_sigmas must be >= 0, got {noise_sigmas}")
     if steady_from_s is None:
         if not 0.0 < steady_fraction <= 1.0:
             raise ValueError(f"steady_fraction must be within (0, 1], got {steady_fraction}")
@@ -219,8 +222,10 @@ def run_lock_time(t_s: np.ndarray, r_px: np.ndarray, window_s: float, band: floa
     sq = r**2 if r.ndim == 1 else np.sum(r**2, axis=1)
     steady = float(np.sqrt(np.mean(sq[i0:])))
     run = running_rms(t, r, window_s)
-    spread = float(np.std(run[i0:]))
-    thr = (1.0 + band) * steady + spread_sigmas * spread + floor_px
+    axes = 1 if r.ndim == 1 else r.shape[1]
+    per_window = max(1.0, window_s / float(np.median(np.diff(t))))
+    scatter = steady / float(np.sqrt(2.0 * axes * per_window))
+    thr = (1.0 + band) * steady + noise_sigmas * scatter + floor_px
     above = np.flatnonzero(run > thr * (1.0 + 1e-12))
     if not above.size:
         lock = float(t[0])
@@ -229,4 +234,4 @@ def run_lock_time(t_s: np.ndarray, r_px: np.ndarray, window_s: float, band: floa
     else:
         lock = float(t[above[-1] + 1])
     return RunLock(lock, steady, thr, float(band), float(window_s), float(floor_px),
-                   float(spread_sigmas), spread)
+                   float(noise_sigmas), float(scatter))

@@ -68,12 +68,15 @@ def run_scenario(sc: Scenario, out: Path, save_frames: bool = False, fresh: bool
     :func:`imc.outputs.htmlreport.write_run_report`); ``parallel_outputs``: draw and record
     on a helper process (:mod:`imc.outputs.jobs`), the same files."""
     t_start = time.perf_counter()
-    jobs = make_jobs(parallel_outputs and (rerun or report_figures or sc.metrics.blur_images))
+    pictures = sc.metrics.blur_images and sc.camera.main_imager.kind == "frame"
+    jobs = make_jobs(parallel_outputs and (rerun or report_figures or pictures))
     try:
         metrics, info = _run(sc, Path(out), save_frames, fresh, progress, rerun, warn,
                              report_figures, jobs)
-    finally:
-        jobs.close()
+    except BaseException:
+        jobs.close(cancel=True)
+        raise
+    jobs.close()
     info["wall_s"] = time.perf_counter() - t_start
     info["loop_s"] = info.pop("loop_done") - t_start
     return metrics, info

@@ -93,14 +93,15 @@ def test_run_lock_time_of_a_decaying_residual_is_its_closed_form():
                                      rel=1e-12)
 
 
-def test_run_lock_time_allows_the_running_rms_its_own_spread():
+def test_run_lock_time_allows_the_running_rms_its_sampling_scatter():
     """A transient a e^{-t/tau} in white noise (sigma an axis), a 10-sample window: the
-    window's RMS scatters ~22 % about the steady state's, so a 25 % band alone is crossed by
-    chance until late in the run (the lock time lands in its last quarter, or never). With 3
-    standard deviations of that scatter allowed, the lock is where the transient's running
-    mean square, a^2 tau (e^{2w/tau} - 1) e^{-2t/tau} / (2w), meets threshold^2 - 2 sigma^2
-    (the closed form of the test above, the noise's mean square added); 15 samples allowed
-    for the noise in the window at the crossing."""
+    window's RMS scatters 1 / sqrt(2 x 2 axes x 10) = 16 % about the steady state's, so a 25 %
+    band alone is crossed by chance until late in the run (the lock time lands in its last
+    quarter, or never). With 3 standard deviations of that scatter allowed, the lock is where
+    the transient's running mean square, a^2 tau (e^{2w/tau} - 1) e^{-2t/tau} / (2w), meets
+    threshold^2 - 2 sigma^2 (the closed form of the test above, the noise's mean square
+    added); 15 samples allowed for the noise in the window at the crossing. A residual that
+    grows to the end still never locks."""
     dt, tau, a, sigma, w = 1e-3, 0.02, 1.0, 0.02, 0.01
     t = np.arange(1000) * dt
     for seed in range(4):
@@ -109,13 +110,15 @@ def test_run_lock_time_allows_the_running_rms_its_own_spread():
                       sigma * rng.standard_normal(len(t))], axis=1)
         plain = run_lock_time(t, r, window_s=w).lock_s
         assert np.isnan(plain) or plain > 0.75, (seed, plain)
-        lock = run_lock_time(t, r, window_s=w, spread_sigmas=3.0)
-        assert 0.1 < lock.spread_px / lock.steady_rms_px < 0.35  # ~1 / sqrt(2 x 10)
+        lock = run_lock_time(t, r, window_s=w, noise_sigmas=3.0)
+        assert lock.scatter_px == pytest.approx(lock.steady_rms_px / np.sqrt(40.0), rel=1e-6)
         expect = 0.5 * tau * np.log(a * a * tau * np.expm1(2 * w / tau)
                                     / (2 * w * (lock.threshold_px**2 - 2 * sigma**2)))
         assert lock.lock_s == pytest.approx(expect, abs=15 * dt), seed
-    with pytest.raises(ValueError, match="spread_sigmas"):
-        run_lock_time(t, r, window_s=w, spread_sigmas=-1.0)
+    growing = np.stack([np.exp(5 * t), np.zeros_like(t)], axis=1)
+    assert np.isnan(run_lock_time(t, growing, window_s=0.05, noise_sigmas=3.0).lock_s)
+    with pytest.raises(ValueError, match="noise_sigmas"):
+        run_lock_time(t, r, window_s=w, noise_sigmas=-1.0)
 
 
 def test_run_lock_time_never_locked_and_bad_arguments():

@@ -133,6 +133,54 @@ def test_jobs_hand_back_results_and_failures_in_order(parallel):
         jobs.close()
 
 
+def _note(path: str, word: str, die_in_a_helper: bool = False) -> str:
+    import multiprocessing
+    import os
+
+    if die_in_a_helper and multiprocessing.parent_process() is not None:
+        os._exit(3)
+    with open(path, "a") as f:
+        f.write(word)
+    return word
+
+
+def test_jobs_the_helper_did_not_finish_run_inline_in_their_order(tmp_path):
+    """The helper dies in job a with b queued behind it; c comes after the helper is gone:
+    a, b, c still run in their order (c may need what b writes), each once."""
+    import time
+
+    from imc.outputs.jobs import ProcessJobs
+
+    path = str(tmp_path / "notes")
+    jobs = ProcessJobs()
+    try:
+        a, b = jobs.submit(_note, path, "a", True), jobs.submit(_note, path, "b")
+        for _ in range(300):
+            if jobs._pool._broken:
+                break
+            time.sleep(0.1)
+        c = jobs.submit(_note, path, "c")
+        assert [jobs.result(t) for t in (a, b, c)] == ["a", "b", "c"]
+    finally:
+        jobs.close()
+    assert Path(path).read_text() == "abc"
+
+
+def test_a_failed_run_stops_its_helper_at_once():
+    """close(cancel=True), what a run that raised (or was interrupted) calls: the helper's
+    job in progress and those queued are dropped, without waiting for them."""
+    import time
+
+    from imc.outputs.jobs import ProcessJobs
+
+    jobs = ProcessJobs()
+    jobs.submit(time.sleep, 60.0)
+    jobs.submit(time.sleep, 60.0)
+    t0 = time.perf_counter()
+    jobs.close(cancel=True)
+    assert time.perf_counter() - t0 < 15.0
+
+
 def test_a_job_whose_helper_died_runs_again_inline():
     from imc.outputs.jobs import ProcessJobs
 

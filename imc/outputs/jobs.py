@@ -26,8 +26,9 @@ class Jobs(Protocol):
     def result(self, ticket: int) -> Any:
         """The job's return value (waiting for it); re-raises what it raised."""
 
-    def close(self) -> None:
-        """Wait for what is queued (its failures are for :meth:`result`) and stop."""
+    def close(self, cancel: bool = False) -> None:
+        """Wait for what is queued (its failures are for :meth:`result`) and stop; with
+        ``cancel`` (the run failed) drop what has not started and do not wait."""
 
 
 @dataclass
@@ -49,7 +50,7 @@ class InlineJobs:
             raise value
         return value
 
-    def close(self) -> None:
+    def close(self, cancel: bool = False) -> None:
         pass
 
 
@@ -81,7 +82,9 @@ def _warm() -> None:
     import atexit
     import io
     import os
+    import signal
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the run's to report, in a line
     _exit_with_parent()
     import matplotlib
 
@@ -131,24 +134,43 @@ class ProcessJobs:
     def submit(self, fn: Callable[..., Any], *args: Any) -> int:
         try:
             fut = self._pool.submit(fn, *args)
-        except (BrokenProcessPool, RuntimeError):  # the helper is gone: run it here
-            fut = Future()
-            try:
-                fut.set_result(fn(*args))
-            except Exception as e:
-                fut.set_exception(e)
+        except (BrokenProcessPool, RuntimeError):  # the helper is gone: run it here, after
+            self._settle(len(self._jobs) - 1)  # the jobs before it that it did not finish
+            fut = _run_here(fn, args)
         self._jobs.append((fn, args, fut))
         return len(self._jobs) - 1
 
     def result(self, ticket: int) -> Any:
-        fn, args, fut = self._jobs[ticket]
-        try:
-            return fut.result()
-        except BrokenProcessPool:
-            return fn(*args)
+        self._settle(ticket)
+        return self._jobs[ticket][2].result()
 
-    def close(self) -> None:
-        self._pool.shutdown(wait=True, cancel_futures=False)
+    def _settle(self, last: int) -> None:
+        """Run here, in order, the jobs up to ``last`` that the helper could not finish
+        (it died): a later job may need what an earlier one writes."""
+        for i in range(last + 1):
+            fn, args, fut = self._jobs[i]
+            try:
+                fut.result()
+            except BrokenProcessPool:
+                self._jobs[i] = (fn, args, _run_here(fn, args))
+            except Exception:  # noqa: BLE001 (the job's own failure, for result())
+                pass
+
+    def close(self, cancel: bool = False) -> None:
+        if cancel:  # the run failed: nothing it queued is wanted, the helper is stopped now
+            for proc in list(getattr(self._pool, "_processes", {}).values()):
+                proc.terminate()
+        self._pool.shutdown(wait=True, cancel_futures=cancel)
+
+
+def _run_here(fn: Callable[..., Any], args: tuple) -> Future:
+    """A finished future of ``fn(*args)`` run in this process."""
+    fut: Future = Future()
+    try:
+        fut.set_result(fn(*args))
+    except Exception as e:  # noqa: BLE001 (kept for result())
+        fut.set_exception(e)
+    return fut
 
 
 def make_jobs(parallel: bool) -> Jobs:

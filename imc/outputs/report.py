@@ -127,14 +127,14 @@ def exposure_comparison(truth: Truth, trajectory) -> dict:
             "worse": listed}
 
 
-#: the running RMS's own spread over the steady state allowed in the run's lock time
-LOCK_SPREAD_SIGMAS = 3.0
+#: the running RMS's sampling scatter allowed in the run's lock time, standard deviations
+LOCK_NOISE_SIGMAS = 3.0
 
 
 def run_lock(m: Models, truth: Truth) -> dict:
     """The run's own lock time (:func:`compensation.lock.run_lock_time`) on the true residual
     the tracker sees, frame by frame (the blocks' true shifts averaged), s: the running RMS
-    within 25 % of the steady state's plus 3 standard deviations of its own spread there."""
+    within 25 % of the steady state's plus 3 standard deviations of its sampling scatter."""
     from compensation.lock import run_lock_time
 
     r = np.nanmean(truth.meas_px[1:], axis=1)
@@ -143,7 +143,7 @@ def run_lock(m: Models, truth: Truth) -> dict:
     if ok.sum() < 10 or not m.scenario.compensation.enabled:
         return {"measured_s": None}
     lock = run_lock_time(m.frame_mid_s[1:][ok], r[ok], window_s=window,
-                         spread_sigmas=LOCK_SPREAD_SIGMAS)
+                         noise_sigmas=LOCK_NOISE_SIGMAS)
     return {"measured_s": _floats([lock.lock_s])[0], "measured_band": lock.band,
             "steady_rms_px": float(lock.steady_rms_px),
             "measured_threshold_px": float(lock.threshold_px)}

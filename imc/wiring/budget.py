@@ -60,9 +60,10 @@ BLUR_IMAGES_BYTES = 300e6
 #: coordinates and the deconvolution's spectra), and the two ray casters' batches and scenes
 PRODUCT_BYTES_PER_PX = 400.0
 PRODUCT_BASE_BYTES = 400e6
-#: report.html and its figures (matplotlib, written by every run unless --no-report), bytes
-#: (measured: +90 MB on the quickstart)
-REPORT_BYTES = 150e6
+#: report.html, its figures and the recording (matplotlib, Rerun), bytes: drawn by `imc run`
+#: on a helper process (imc.outputs.jobs; measured 241 MB resident on the quickstart, the
+#: run's own process then 108 MB below drawing them itself)
+REPORT_BYTES = 250e6
 #: the jitter's evaluation chunk (orbit.jitter._CHUNK) times its components, 4 float arrays
 JITTER_CHUNK = 4096
 JITTER_MAX_COMPONENTS = 20000
@@ -315,7 +316,8 @@ def _fields_of(sc: Scenario, part: str) -> str:
     if part == "product":
         return "product.lines x product.cols (the main imager's product)"
     if part == "report":
-        return "the run's report (report.html and its figures; --no-report skips them)"
+        return ("the run's report, figures and recording (imc run draws them on a helper "
+                "process)")
     if part == "plant":
         return ("camera.tracker.rows x cols, duration_s and the image's motion (the texture "
                 "plant's motion maps and margins; attitude.mode, attitude.jitter)")

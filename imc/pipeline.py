@@ -9,6 +9,7 @@ checkpoints from :mod:`imc.wiring.checkpoint`.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import time
 from collections.abc import Callable
@@ -135,7 +136,8 @@ def _run(sc: Scenario, out: Path, save_frames: bool, fresh: bool, progress: Prog
     files = write_tables(m, res, truth, out, frames, ref_corners, save_frames, parts.model)
     files.append(out / "blur.npz")
     # the figures of the files written so far, while the main imager renders
-    drawn = jobs.submit(draw_run_figures, out, dict(metrics)) if report_figures else None
+    drawn = (jobs.submit(draw_run_figures, out, copy.deepcopy(metrics)) if report_figures
+             else None)
     drawing = []
     if sc.metrics.blur_images and m.line_rate_hz is None:
         from imc.wiring.blur import main_imager_study
@@ -144,6 +146,8 @@ def _run(sc: Scenario, out: Path, save_frames: bool, fresh: bool, progress: Prog
             m, res.trajectory, truth, blurs, metrics["main_imager_blur"],
             spp=sc.metrics.blur_spp)
         drawing.append(jobs.submit(fig_main_imager, out / "main_imager.png", picture))
+    else:  # an earlier run's picture in this folder would show in this run's report
+        (out / "main_imager.png").unlink(missing_ok=True)
     if sc.product.enabled:
         from imc.wiring.product import product_study
 

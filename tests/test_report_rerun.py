@@ -274,3 +274,20 @@ def test_a_helper_process_writes_what_inline_writes(tmp_path):
     for p in (False, True):
         assert (tmp_path / f"parallel_{p}" / "main_imager.png").stat().st_size > 50_000
         assert (tmp_path / f"parallel_{p}" / "recording.rrd").stat().st_size > 10_000
+
+
+def test_a_run_without_pictures_leaves_no_earlier_picture_in_its_folder(tmp_path):
+    """main_imager.png of an earlier run in the same folder would show in this run's report
+    and recording: a run that does not draw it removes it."""
+    from imc.pipeline import run_scenario
+    from imc.scenario import parse_scenario
+
+    data = tiny_base()
+    data["metrics"].update(blur_images=True, blur_spp=4)
+    run_scenario(parse_scenario(data), tmp_path, rerun=False)
+    assert (tmp_path / "main_imager.png").exists()
+    data["metrics"]["blur_images"] = False
+    _, info = run_scenario(parse_scenario(data), tmp_path, fresh=True, rerun=False,
+                           report_figures=True)
+    assert not (tmp_path / "main_imager.png").exists()
+    assert all(Path(f).name != "main_imager.png" for f in info["files"])

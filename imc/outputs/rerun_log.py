@@ -284,6 +284,7 @@ def recording_data(m: Models, res: LoopResult, truth: Truth, frames: np.ndarray 
 
     t, mo, st = uniform_motion(m, res.trajectory)
     return {"name": m.scenario.name, "n_blocks": int(res.record.shift_px.shape[1]),
+            "product": bool(m.scenario.product.enabled),  # not a product/ an older run left
             "tracker": _tracker_data(m, res, truth, frames, ref_corners),
             "series": {"t_s": t, "motion_px": mo, "stage_px": st, "frame_t_s": m.frame_t_s,
                        "estimate_px": estimate_px(m, res)},
@@ -298,7 +299,8 @@ def write_recording(path: Path, data: dict) -> Path:
 
     path = Path(path)
     has_render = (path.parent / "main_imager.png").exists()
-    has_product = (path.parent / "product" / "product.npz").exists()
+    has_product = (data.get("product", True)
+                   and (path.parent / "product" / "product.npz").exists())
     bp = blueprint(data["n_blocks"], has_render, has_product)
 
     def write(tmp: Path) -> None:
@@ -307,7 +309,8 @@ def write_recording(path: Path, data: dict) -> Path:
         _log_tracker(rec, rr, data["tracker"])
         _log_motion(rec, rr, data["series"])
         _log_imager(rec, rr, path.parent)
-        log_product(rec, rr, path.parent)
+        if has_product:
+            log_product(rec, rr, path.parent)
         _log_world(rec, rr, data["world"])
         rec.flush()
         rec.disconnect()

@@ -133,7 +133,8 @@ def _run(sc: Scenario, out: Path, save_frames: bool, fresh: bool, progress: Prog
     metrics["main_imager_blur"] = write_blur_npz(out / "blur.npz", truth, res.trajectory, blurs)
     frames = getattr(plant, "frames", None)
     ref_corners = getattr(plant, "ref_corners_rec", None)
-    files = write_tables(m, res, truth, out, frames, ref_corners, save_frames, parts.model)
+    files, series = write_tables(m, res, truth, out, frames, ref_corners, save_frames,
+                                 parts.model)
     files.append(out / "blur.npz")
     # the figures of the files written so far, while the main imager renders
     drawn = (jobs.submit(draw_run_figures, out, copy.deepcopy(metrics)) if report_figures
@@ -157,7 +158,8 @@ def _run(sc: Scenario, out: Path, save_frames: bool, fresh: bool, progress: Prog
             drawing.append(jobs.submit(write_quicklook, out))
     if rerun:  # after the main imager's figure and the product: it shows them
         drawing.append(jobs.submit(write_recording, out / "recording.rrd",
-                                   recording_data(m, res, truth, frames, ref_corners)))
+                                   recording_data(m, res, truth, frames, ref_corners,
+                                                  series)))
     write_json(out / "metrics.json", metrics)
     files.append(out / "metrics.json")
     for ticket in drawing:

@@ -96,8 +96,9 @@ def estimate_px(m: Models, res: LoopResult) -> np.ndarray:
 
 def write_series(out: Path, m: Models, res: LoopResult, truth: Truth, loop_model=None,
                  frames: np.ndarray | None = None, ref_corners: np.ndarray | None = None
-                 ) -> Path:
-    """series.npz: what the report and the recording need beyond tracks.csv and blur.npz."""
+                 ) -> tuple[Path, dict[str, np.ndarray]]:
+    """series.npz: what the report and the recording need beyond tracks.csv and blur.npz;
+    returns its path and arrays."""
     t, motion, stage = uniform_motion(m, res.trajectory)
     arrays: dict[str, np.ndarray] = {
         "t_s": t, "motion_px": motion, "stage_px": stage,
@@ -116,7 +117,7 @@ def write_series(out: Path, m: Models, res: LoopResult, truth: Truth, loop_model
             arrays["frame_corners_px"] = np.asarray(ref_corners[k])
     path = Path(out) / "series.npz"
     write_npz(path, **arrays)
-    return path
+    return path, arrays
 
 
 def _load(run_dir: Path, name: str):

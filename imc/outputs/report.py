@@ -219,9 +219,10 @@ def geometry_summary(m: Models) -> dict:
 
 def write_tables(m: Models, res: LoopResult, truth: Truth, out: Path,
                  frames: np.ndarray | None, ref_corners: np.ndarray | None,
-                 save_frames: bool, loop_model=None) -> list[Path]:
+                 save_frames: bool, loop_model=None) -> tuple[list[Path], dict]:
     """tracks.csv, series.npz (for the report and the recording) and (optionally)
-    frames.npz, atomically; metrics.json and the recording are the pipeline's."""
+    frames.npz, atomically; metrics.json and the recording are the pipeline's. Returns the
+    files and series.npz's arrays."""
     out.mkdir(parents=True, exist_ok=True)
     rec = res.record
     written = []
@@ -251,5 +252,6 @@ def write_tables(m: Models, res: LoopResult, truth: Truth, out: Path,
         written.append(out / "frames.npz")
     from imc.outputs.figures import write_series
 
-    written.append(write_series(out, m, res, truth, loop_model, frames, ref_corners))
-    return written
+    path, series = write_series(out, m, res, truth, loop_model, frames, ref_corners)
+    written.append(path)
+    return written, series

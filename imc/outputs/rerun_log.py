@@ -277,17 +277,15 @@ def _log_world(rec, rr, d: dict) -> None:
 
 
 def recording_data(m: Models, res: LoopResult, truth: Truth, frames: np.ndarray | None,
-                   ref_corners: np.ndarray | None) -> dict:
+                   ref_corners: np.ndarray | None, series: dict) -> dict:
     """Everything the recording shows beyond the files of the run folder, as arrays (numpy
-    only, picklable: :func:`write_recording` may run on a helper process)."""
-    from imc.outputs.figures import estimate_px, uniform_motion
-
-    t, mo, st = uniform_motion(m, res.trajectory)
+    only, picklable: :func:`write_recording` may run on a helper process); ``series``:
+    series.npz's arrays (:func:`imc.outputs.figures.write_series`)."""
     return {"name": m.scenario.name, "n_blocks": int(res.record.shift_px.shape[1]),
             "product": bool(m.scenario.product.enabled),  # not a product/ an older run left
             "tracker": _tracker_data(m, res, truth, frames, ref_corners),
-            "series": {"t_s": t, "motion_px": mo, "stage_px": st, "frame_t_s": m.frame_t_s,
-                       "estimate_px": estimate_px(m, res)},
+            "series": {k: series[k] for k in ("t_s", "motion_px", "stage_px", "frame_t_s",
+                                              "estimate_px")},
             "world": _world_data(m)}
 
 

@@ -28,7 +28,7 @@ class Jobs(Protocol):
 
     def close(self, cancel: bool = False) -> None:
         """Wait for what is queued (its failures are for :meth:`result`) and stop; with
-        ``cancel`` (the run failed) drop what has not started and do not wait."""
+        ``cancel`` (the run failed) drop what is queued and stop a helper at once."""
 
 
 @dataclass

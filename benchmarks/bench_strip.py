@@ -133,7 +133,7 @@ def main() -> None:
     col_ids = np.arange(cols)
     reset_peak()
     t0 = time.perf_counter()
-    res = render_strip(caster, cam, imager, t0_s, n_lines, col_ids, spl)
+    res = render_strip(caster, imager_camera(cam, imager), imager, t0_s, n_lines, col_ids, spl)
     wall = time.perf_counter() - t0
     out["product"] = {"lines": n_lines, "cols": cols, "samples_per_line": spl,
                       "wall_s": wall, "rays": res.rays, "hit_fraction": res.hit_fraction,
@@ -148,7 +148,8 @@ def main() -> None:
         t0 = time.perf_counter()
         t0_s = -(n / 2 + stages / 2) / 8296.0
         acc = 0.0
-        for ch in iter_strip(caster, cam, imager, t0_s, n, col_ids, spl):
+        for ch in iter_strip(caster, imager_camera(cam, imager), imager, t0_s, n, col_ids,
+                             spl):
             acc += float(ch.radiance.sum())  # use the chunk, then drop it
         mem[n] = {"wall_s": time.perf_counter() - t0, "rss_before_mb": before,
                   "peak_rss_mb": peak_rss_mb()}

@@ -110,28 +110,53 @@ class CameraModel:
         iterations: int = 8
     ) -> np.ndarray:
         """ENU points (..., 3) seen at pixels (..., 2) at time t_s on the surface h(E, N);
-        for times t_s (T,), the points (T, ..., 3) at each of them.
-
-        Intersects each pixel's ray with the terrain by fixed-point iteration on the height
-        (rays are within a degree of vertical, so it converges to < 1 mm in a few steps).
-        """
+        for times t_s (T,), the points (T, ..., 3) at each of them
+        (:func:`intersect_terrain`)."""
         t = np.asarray(t_s, dtype=np.float64)
         if t.ndim > 1:
             raise ValueError(f"t_s must be a time or a 1-D array of times, got shape {t.shape}")
         pose = self.pose(t)
-        dirs = self.focal_plane.cam_direction(pixel_rc)
-        if t.ndim == 0:
-            d = np.einsum("ij,...j->...i", pose.enu_from_cam, dirs)
-            c = pose.position_m
-        else:
-            flat = dirs.reshape(-1, 3)
-            d = np.einsum("tij,pj->tpi", pose.enu_from_cam, flat).reshape(
-                len(t), *dirs.shape[:-1], 3)
-            c = pose.position_m.reshape(len(t), *([1] * (dirs.ndim - 1)), 3)
-        h = np.zeros(d.shape[:-1])
-        for _ in range(iterations):
-            s = (h - c[..., 2]) / d[..., 2]
-            p = c + s[..., None] * d
-            h = height_fn(p[..., 0], p[..., 1])
+        pix = np.asarray(pixel_rc, dtype=np.float64)
+        if t.ndim == 1:
+            lead = (1,) * (pix.ndim - 1)
+            pose = Pose(pose.position_m.reshape(len(t), *lead, 3),
+                        pose.enu_from_cam.reshape(len(t), *lead, 3, 3))
+        return intersect_terrain(pose, self.focal_plane, pix, height_fn, iterations)
+
+    def ground_points_posed(self, poses: Pose, pixel_rc: np.ndarray, height_fn: HeightFn,
+                            iterations: int = 8) -> np.ndarray:
+        """ENU points (..., 3) seen at focal-plane positions (..., 2) (a stage offset already
+        added) by ``poses`` broadcasting against them, one pose per point
+        (:func:`intersect_terrain` on this camera's focal plane)."""
+        return intersect_terrain(poses, self.focal_plane, pixel_rc, height_fn, iterations)
+
+
+def intersect_terrain(poses: Pose, focal_plane: FocalPlane, pixel_rc: np.ndarray,
+                      height_fn: HeightFn, iterations: int = 8) -> np.ndarray:
+    """The ray-terrain intersection: ENU points (..., 3) seen at focal-plane positions
+    (..., 2) (row, col) px by poses broadcasting against them, on the surface h(E, N), float64.
+
+    Parameters
+    ----------
+    poses : camera poses (position (..., 3) m, enu_from_cam (..., 3, 3)) broadcasting against
+        the positions' leading shape.
+    focal_plane : the focal plane the positions are on.
+    pixel_rc : (..., 2) focal-plane positions, px.
+    height_fn : terrain height h(E, N), m.
+    iterations : fixed-point steps on the height (rays within a degree of vertical converge to
+        < 1 mm in a few).
+
+    Returns
+    -------
+    (..., 3) ENU points, m.
+    """
+    d_cam = focal_plane.cam_direction(np.asarray(pixel_rc, dtype=np.float64))
+    d = np.einsum("...ij,...j->...i", poses.enu_from_cam, d_cam)
+    c = poses.position_m
+    h = np.zeros(np.broadcast_shapes(d.shape[:-1], c.shape[:-1]))
+    for _ in range(iterations):
         s = (h - c[..., 2]) / d[..., 2]
-        return c + s[..., None] * d
+        p = c[..., :2] + s[..., None] * d[..., :2]
+        h = height_fn(p[..., 0], p[..., 1])
+    s = (h - c[..., 2]) / d[..., 2]
+    return c + s[..., None] * d

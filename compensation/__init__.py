@@ -1,6 +1,14 @@
 """The compensation loop: blocks behind protocols, the loop that steps them, the analytic
-loop model, and the residual-blur metrics. Numpy and scipy (pydantic for the
-blocks' parameter checks in :mod:`compensation.registry`); imports no other imcsim package."""
+loop model, and the residual-blur metrics. Numpy and scipy (pydantic for the blocks' parameter
+checks in :mod:`compensation.registry`); imports no other imcsim package.
+
+- `blocks`: the loop's signals and the blocks' protocols; `registry`: kind -> class per role;
+- `loop`: the loop that steps plant -> transport -> estimator -> controller -> actuator;
+- `estimators`, `controllers`, `actuators`, `supervisor`, `transport`: the blocks;
+- `analytic`: rejection |S(f)|, noise gain and margins; `analytic_plant`: the plant whose
+  measurements are the truth plus the correlator's predicted noise;
+- `lock`: lock time; `metrics`: residual RMS, peak-to-peak, motion MTF; `state`: block states
+  for checkpoints."""
 
 from compensation.analytic import LoopModel, Margins, design_lines, measured_rejection
 from compensation.blocks import (

@@ -1,5 +1,13 @@
 """Image-motion measurement: block correlation (JTC, cross, phase), sub-pixel, tracking.
 
+Modules: `core` (batched shift measurement), `jtc` (the digital joint transform
+correlator), `optical` (the JTOC emulation), `driver` (the serial link and a device
+emulator), `timing` (the optical pipeline's schedule), `tracker` (multi-block tracking),
+`kernels` (compiled hot path), `fftbackend`, `spectral` (windows and bands), `peaks`
+(peak fits, PSR), `gradient` (Lucas-Kanade refinement), `masked` (large shifts), `bounds`
+(Cramer-Rao bounds), `detection` and `tail` (validity as probabilities), `options`,
+`testimages`.
+
 The names below are loaded on first use (PEP 562): importing a light submodule
 (:mod:`correlator.options`, :mod:`correlator.optical`, :mod:`correlator.timing`) does not
 import the FFT back-end, pyfftw or the compiled kernels that :mod:`correlator.core` needs.

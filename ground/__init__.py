@@ -15,6 +15,6 @@ ground/ owns what happens to the main imager's strip (or frame) once it is on th
   product, and a cross-check of the motion MTF against pyBSM's drift and jitter OTFs.
 
 It renders nothing (no renderer, no scene/), and imports only numpy, scipy, scikit-image,
-pyBSM and the lower stages (camera/, compensation/). Units are SI inside; image quantities
-are in pixels of the main imager.
+pyBSM and the lower stage compensation/ (tests/test_layout.py). Units are SI inside;
+image quantities are in pixels of the main imager.
 """

@@ -90,8 +90,8 @@ def residual_psf(r_px, *, weights=None, bin_px: float = PSF_BIN_PX,
     w = np.ones(len(r)) if weights is None else np.asarray(weights, dtype=np.float64)
     if w.shape != (len(r),) or not np.all(np.isfinite(w) & (w >= 0)) or w.sum() <= 0:
         raise ValueError(f"weights must be ({len(r)},) finite, >= 0, not all zero")
-    if not (np.isfinite(bin_px) and 0 < bin_px <= 0.5):
-        raise ValueError(f"bin_px must be in (0, 0.5] px, got {bin_px}")
+    if not (np.isfinite(bin_px) and bin_px > 0):
+        raise ValueError(f"bin_px must be a finite bin size > 0 px, got {bin_px}")
     w = w / w.sum()
     centre = (w @ r) if about_mean else np.zeros(2)
     d = r - centre

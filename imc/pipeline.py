@@ -2,7 +2,8 @@
 
 The models come from :mod:`imc.wiring.build`, the plant from
 :mod:`imc.wiring.rendered_plant`, the loop from :mod:`compensation.loop`, the truth from
-:mod:`imc.wiring.truth`, the main imager's blur from :mod:`imc.wiring.blur`, the reports from
+:mod:`imc.wiring.truth`, the main imager's blur from :mod:`imc.wiring.blur`, its product and
+picture from :mod:`imc.wiring.product`, the reports from
 :mod:`imc.outputs` (their drawing and recording as jobs of :mod:`imc.outputs.jobs`), the
 checkpoints from :mod:`imc.wiring.checkpoint`.
 """
@@ -17,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from camera.imager import IMAGERS
 from compensation.loop import simulate
 from imc.io import write_json
 from imc.outputs.figures import draw_run_figures, fig_main_imager
@@ -69,7 +71,7 @@ def run_scenario(sc: Scenario, out: Path, save_frames: bool = False, fresh: bool
     :func:`imc.outputs.htmlreport.write_run_report`); ``parallel_outputs``: draw and record
     on a helper process (:mod:`imc.outputs.jobs`), the same files."""
     t_start = time.perf_counter()
-    pictures = sc.metrics.blur_images and sc.camera.main_imager.kind == "frame"
+    pictures = sc.metrics.blur_images and not IMAGERS[sc.camera.main_imager.kind].scanning
     jobs = make_jobs(parallel_outputs and (rerun or report_figures or pictures))
     try:
         metrics, info = _run(sc, Path(out), save_frames, fresh, progress, rerun, warn,
@@ -140,22 +142,20 @@ def _run(sc: Scenario, out: Path, save_frames: bool, fresh: bool, progress: Prog
     drawn = (jobs.submit(draw_run_figures, out, copy.deepcopy(metrics)) if report_figures
              else None)
     drawing = []
-    if sc.metrics.blur_images and m.line_rate_hz is None:
-        from imc.wiring.blur import main_imager_study
+    rendered = None
+    if sc.product.enabled:
+        rendered = _product(m, res, out, fresh, metrics, files)
+        if report_figures:
+            drawing.append(jobs.submit(write_quicklook, out))
+    if sc.metrics.blur_images and not m.imager.scanning:  # a TDI product is its own picture
+        from imc.wiring.product import picture_study
 
-        metrics["main_imager_blur"], picture = main_imager_study(
-            m, res.trajectory, truth, blurs, metrics["main_imager_blur"],
+        metrics["main_imager_blur"], picture = picture_study(
+            m, res, truth, blurs, metrics["main_imager_blur"], rendered, out,
             spp=sc.metrics.blur_spp)
         drawing.append(jobs.submit(fig_main_imager, out / "main_imager.png", picture))
     else:  # an earlier run's picture in this folder would show in this run's report
         (out / "main_imager.png").unlink(missing_ok=True)
-    if sc.product.enabled:
-        from imc.wiring.product import product_study
-
-        metrics["product"] = product_study(m, res, out, fresh)
-        files.extend(Path(f) for f in metrics["product"].get("files", ()))
-        if report_figures:
-            drawing.append(jobs.submit(write_quicklook, out))
     if rerun:  # after the main imager's figure and the product: it shows them
         drawing.append(jobs.submit(write_recording, out / "recording.rrd",
                                    recording_data(m, res, truth, frames, ref_corners,
@@ -171,6 +171,20 @@ def _run(sc: Scenario, out: Path, save_frames: bool, fresh: bool, progress: Prog
     if drawn is not None:
         info["figures"] = jobs.result(drawn)
     return metrics, info
+
+
+def _product(m: Models, res, out: Path, fresh: bool, metrics: dict, files: list):
+    """The main imager's product (:func:`imc.wiring.product.product_study`) into
+    ``product/`` and metrics.json's ``product``; returns its renders (the picture reuses
+    them)."""
+    from imc.outputs.product_files import product_metrics, write_product
+    from imc.wiring.product import product_study
+
+    ds, rendered = product_study(m, res, out, fresh)
+    written = write_product(ds, out / "product")
+    metrics["product"] = product_metrics(ds, written)
+    files.extend(written)
+    return rendered
 
 
 def _with_link_state(link, write: Callable) -> Callable:

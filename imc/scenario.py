@@ -17,6 +17,7 @@ from typing import Annotated, ClassVar, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from camera.imager import IMAGERS
 from compensation.registry import (
     MAX_MAGNITUDE,
     bool_at,
@@ -905,7 +906,7 @@ class Scenario(_Model):
         if self.orbit.kind in ("elements", "tle") and self.attitude.mode != "target":
             raise ValueError(f"orbit.kind '{self.orbit.kind}' is not placed over the scene: "
                              "use attitude.mode 'target' (stare at the scene centre)")
-        if self.camera.main_imager.kind == "tdi" and self.attitude.mode == "target":
+        if IMAGERS[self.camera.main_imager.kind].scanning and self.attitude.mode == "target":
             raise ValueError("camera.main_imager.kind 'tdi' needs a scanning attitude: set "
                              "attitude.mode to 'nadir' or 'off_nadir' (with yaw_steering)")
         if self.correlator.block_px > min(t.rows, t.cols):

@@ -1,5 +1,11 @@
 """Orbit propagation, Earth frames (WGS84), solar position and spacecraft attitude.
 
+- `kepler`: Keplerian orbits with J2 secular rates; `tle`: SGP4 from a two-line element set;
+  `aircraft`: straight, level flight;
+- `frames`: ECI, ECEF and the local ENU frame; `sun`: the solar position;
+- `attitude`: nominal pointing, yaw steering and jitter; `jitter`: sinusoids, PSD draws,
+  wheel harmonics; `suspension`: the camera's mount between platform and camera.
+
 Units: SI (m, s, rad) inside; angles in degrees only where a name says ``_deg``.
 Frames are described in ``docs/conventions.md``.
 """

@@ -1,6 +1,8 @@
-"""The scene: terrain tiles (procedural, the seed paper's classes, GeoTIFF in any CRS),
-clouds, and the Mitsuba kernel layer that renders them (``scene.kernel``, the only module
-of imcsim that imports mitsuba / drjit). Importing this package imports neither.
+"""The scene: terrain tiles (`terrain`; procedural, the seed paper's `classes`, GeoTIFF
+in any CRS: `geotiff`), clouds, calibration `targets` (the slanted square), the host-side ray
+geometry (`pinhole`), the main imager's image as the camera forms it (`strip`), and the
+Mitsuba kernel layer that renders them (`kernel`, the only module of imcsim that imports
+mitsuba / drjit; its variant chosen by `variant`). Importing this package imports neither.
 """
 
 #: the seed paper's scene classes (:mod:`scene.classes`)

@@ -25,16 +25,14 @@ from camera.imager import FrameImager, TdiImager, synchronous_line_rate_hz
 from camera.linescan import (
     HeightFn,
     StageFn,
+    check_imager_camera,
     frame_offset_px,
     frame_sampling,
-    imager_camera,
     line_offset_px,
     stage_at,
     tdi_sampling,
 )
 from camera.motion import CameraModel
-from camera.optics import Optics
-from camera.sensor import Radiometry, SensorModel
 from scene.pinhole import HitCounts, ray_keyframes
 
 #: detector columns the line-of-sight truth is evaluated at (spread over the window)
@@ -94,14 +92,15 @@ class StripResult(HitCounts):
 def line_rate_for(camera: CameraModel, imager: TdiImager, t_s: float, height_fn: HeightFn,
                   line_rate_hz: float | None = None) -> float:
     """The line rate to clock: ``line_rate_hz``, else the imager's, else synchronous with the
-    predicted (nominal) row velocity at the imager's centre at t_s, Hz."""
+    predicted (nominal) row velocity at the imager's centre at t_s, Hz; ``camera`` with the
+    imager's focal plane."""
     if line_rate_hz is not None:
         if not line_rate_hz > 0:
             raise ValueError(f"line_rate_hz must be > 0, got {line_rate_hz}")
         return float(line_rate_hz)
     if imager.line_rate_hz is not None:
         return float(imager.line_rate_hz)
-    cam = imager_camera(camera, imager)
+    cam = check_imager_camera(camera, imager)
     v = cam.velocity_field_px_s(cam.focal_plane.center_px, t_s, height_fn, nominal=True)[0]
     return synchronous_line_rate_hz(v)
 
@@ -116,6 +115,34 @@ def _indices(values, n_max: int, name: str = "cols") -> np.ndarray:
     if c.min() < -0.5 or c.max() > n_max - 0.5:
         raise ValueError(f"{name} must lie on the imager's {n_max} {name}")
     return c.astype(np.float64)
+
+
+@dataclass(frozen=True)
+class _StripSetup:
+    """What a strip's chunks share, computed once per strip: the columns (C,), the line rate,
+    the sampling, the probe columns (P,) of the truth, lines per chunk."""
+
+    cols: np.ndarray
+    line_rate_hz: float
+    sampling: object
+    probes: np.ndarray
+    lines_per_chunk: int
+
+
+def _strip_setup(caster: Caster, camera: CameraModel, imager: TdiImager, t0_s: float, cols,
+                 samples_per_line: int, line_rate_hz: float | None,
+                 lines_per_chunk: int | None, footprint: bool,
+                 height: HeightFn) -> _StripSetup:
+    fp = check_imager_camera(camera, imager).focal_plane
+    cols = _indices(cols, fp.cols)
+    rate = line_rate_for(camera, imager, t0_s, height, line_rate_hz)
+    sampling = tdi_sampling(imager, rate, samples_per_line, footprint)
+    if lines_per_chunk is None:
+        lines_per_chunk = max(1, caster.batch_rays // (sampling.samples * len(cols)))
+    if lines_per_chunk < 1:
+        raise ValueError(f"lines_per_chunk must be >= 1, got {lines_per_chunk}")
+    probes = np.unique(np.round(np.linspace(cols.min(), cols.max(), OFFSET_PROBES), 6))
+    return _StripSetup(cols, rate, sampling, probes, int(lines_per_chunk))
 
 
 def iter_strip(caster: Caster, camera: CameraModel, imager: TdiImager, t0_s: float,
@@ -134,21 +161,22 @@ def iter_strip(caster: Caster, camera: CameraModel, imager: TdiImager, t0_s: flo
     if not 0 <= first_line < n_lines:
         raise ValueError(f"first_line must be in [0, {n_lines}), got {first_line}")
     height = height_fn or caster.terrain.height_at  # type: ignore[attr-defined]
-    cam = imager_camera(camera, imager)
+    setup = _strip_setup(caster, camera, imager, t0_s, cols, samples_per_line, line_rate_hz,
+                         lines_per_chunk, footprint, height)
+    return _chunks(caster, camera, imager, setup, t0_s, n_lines, stage_offset_px, nominal,
+                   first_line, height)
+
+
+def _chunks(caster: Caster, cam: CameraModel, imager: TdiImager, setup: _StripSetup,
+            t0_s: float, n_lines: int, stage_offset_px: StageFn | None, nominal: bool,
+            first_line: int, height: HeightFn) -> Iterator[StripChunk]:
     fp = cam.focal_plane
-    cols = _indices(cols, fp.cols)
-    rate = line_rate_for(camera, imager, t0_s, height, line_rate_hz)
-    sampling = tdi_sampling(imager, rate, samples_per_line, footprint)
+    sampling, cols, probes = setup.sampling, setup.cols, setup.probes
     s = sampling.samples
-    if lines_per_chunk is None:
-        lines_per_chunk = max(1, caster.batch_rays // (s * len(cols)))
-    if lines_per_chunk < 1:
-        raise ValueError(f"lines_per_chunk must be >= 1, got {lines_per_chunk}")
-    probes = np.unique(np.round(np.linspace(cols.min(), cols.max(), OFFSET_PROBES), 6))
     qx = (cols + 0.5) / fp.cols - 0.5
     # the keyframes' film row qy = 0 is the stage plane's centre row (rows - 1) / 2
     row0 = (fp.rows - 1) / 2.0
-    step = int(lines_per_chunk)
+    step = setup.lines_per_chunk
     # chunk boundaries belong to the whole strip, so a resumed run casts the same batches
     start = (first_line // step) * step
     for a in range(start, n_lines, step):
@@ -162,7 +190,7 @@ def iter_strip(caster: Caster, camera: CameraModel, imager: TdiImager, t0_s: flo
         kf = ray_keyframes(poses, fp, off.reshape(-1, 2), caster.z_start_m)
         res = caster.cast_radiance(kf, qx)
         rad = res.radiance.reshape(len(lines), s, len(cols)).mean(axis=1, dtype=np.float64)
-        field = line_offset_px(camera, imager, sampling, t0_s, lines, probes, height,
+        field = line_offset_px(cam, imager, sampling, t0_s, lines, probes, height,
                                stage_offset_px, nominal)
         yield StripChunk(int(lines[0]), rad.astype(np.float32), field.mean(axis=1), field,
                          res.rays, res.first_hits, res.hits)
@@ -179,8 +207,8 @@ def render_strip(caster: Caster, camera: CameraModel, imager: TdiImager, t0_s: f
     Parameters
     ----------
     caster : the kernel (:class:`scene.kernel.RayCaster`) with the scene.
-    camera : the camera model (orbit, attitude with jitter, frame); the imager's focal plane
-        is used.
+    camera : the camera model (orbit, attitude with jitter, frame) with the imager's focal
+        plane (:func:`camera.linescan.imager_camera`, built once by the caller).
     imager : the TDI imager (stages, clock phases, centre offset).
     t0_s : start of line 0's integration, s since the epoch.
     n_lines : lines to render; cols : detector columns (C,) (e.g. ``np.arange(c0, c1)``).
@@ -198,15 +226,16 @@ def render_strip(caster: Caster, camera: CameraModel, imager: TdiImager, t0_s: f
     StripResult with ``radiance`` (L, C) and ``line_offset_px`` (L, 2), defined by
     ``strip[l, c] ~ static[l + off[l, 0], c + off[l, 1]]``.
     """
-    cols = np.atleast_1d(np.asarray(cols))
-    out = None
+    if n_lines < 1:
+        raise ValueError(f"n_lines must be >= 1, got {n_lines}")
+    height = height_fn or caster.terrain.height_at  # type: ignore[attr-defined]
+    setup = _strip_setup(caster, camera, imager, t0_s, cols, samples_per_line, line_rate_hz,
+                         lines_per_chunk, footprint, height)
+    out = np.empty((n_lines, len(setup.cols)), np.float32)
     offs, fields = [], []
     rays = first = hits = 0
-    for ch in iter_strip(caster, camera, imager, t0_s, n_lines, cols, samples_per_line,
-                         stage_offset_px, nominal, line_rate_hz, 0, lines_per_chunk,
-                         footprint, height_fn):
-        if out is None:
-            out = np.empty((n_lines, ch.radiance.shape[1]), np.float32)
+    for ch in _chunks(caster, camera, imager, setup, t0_s, n_lines, stage_offset_px, nominal,
+                      0, height):
         n = len(ch.radiance)
         out[ch.first_line:ch.first_line + n] = ch.radiance
         offs.append(ch.line_offset_px)
@@ -214,12 +243,8 @@ def render_strip(caster: Caster, camera: CameraModel, imager: TdiImager, t0_s: f
         rays, first, hits = rays + ch.rays, first + ch.first_hits, hits + ch.hits
         if on_chunk is not None:
             on_chunk(ch)
-    height = height_fn or caster.terrain.height_at  # type: ignore[attr-defined]
-    rate = line_rate_for(camera, imager, t0_s, height, line_rate_hz)
-    c = cols.astype(np.float64)
-    probes = np.unique(np.round(np.linspace(c.min(), c.max(), OFFSET_PROBES), 6))
-    return StripResult(out, np.concatenate(offs), np.concatenate(fields), probes, rate,
-                       rays, first, hits)
+    return StripResult(out, np.concatenate(offs), np.concatenate(fields), setup.probes,
+                       setup.line_rate_hz, rays, first, hits)
 
 
 @dataclass(frozen=True)
@@ -248,7 +273,7 @@ def render_frame(caster: Caster, camera: CameraModel, imager: FrameImager, t0_s:
     corners and centre: ``frame[p] ~ static[p + off]``.
     """
     height = height_fn or caster.terrain.height_at  # type: ignore[attr-defined]
-    cam = imager_camera(camera, imager)
+    cam = check_imager_camera(camera, imager)
     fp = cam.focal_plane
     rows = _indices(rows, fp.rows, "rows")
     cols = _indices(cols, fp.cols)
@@ -273,29 +298,3 @@ def render_frame(caster: Caster, camera: CameraModel, imager: FrameImager, t0_s:
     offset = frame_offset_px(camera, imager, sampling, t0_s, probes, height,
                              stage_offset_px, nominal)
     return FrameResult(out, offset, probes, n_rays, first, hits)
-
-
-def expose(radiance: np.ndarray, optics: Optics, sensor: SensorModel,
-           rng: np.random.Generator, integration_s: float,
-           radiometry: Radiometry | None = None, gain_e: float | None = None) -> np.ndarray:
-    """Radiance -> optics MTF -> photo-electrons -> digital image (uint16 DN), as the
-    tracker's frames (imc's expose_frame).
-
-    Electrons are ``radiometry.electrons_per_s(...) * integration_s`` (for a TDI line the
-    integration is N / line_rate), or ``radiance * gain_e`` (e.g. ``sensor.gain_for`` of a
-    reference, the tracker's 'mean_level' signal); give exactly one. The optics' MTF is applied
-    with periodic boundaries: pad a strip (or filter overlapping runs of lines) to keep its
-    ends clean.
-    """
-    if (radiometry is None) == (gain_e is None):
-        raise ValueError("give exactly one of radiometry or gain_e")
-    if not integration_s >= 0:
-        raise ValueError(f"integration_s must be >= 0, got {integration_s}")
-    img = optics.apply(radiance)
-    if radiometry is not None:
-        electrons = radiometry.electrons_per_s(img, optics.f_number, optics.transmission,
-                                               optics.pixel_pitch_m,
-                                               optics.wavelength_m) * integration_s
-    else:
-        electrons = img * float(gain_e)
-    return sensor.expose(electrons, rng, integration_s)

@@ -49,3 +49,21 @@ def test_imc_top_level_is_small_and_sub_packages_say_what_they_own():
     assert len(list((ROOT / "imc").glob("*.py"))) <= 8
     for init in (ROOT / "imc").glob("*/__init__.py"):
         assert ast.get_docstring(ast.parse(init.read_text())), init
+
+
+def _package_dirs() -> list[Path]:
+    return sorted(p.parent for pkg in PACKAGES for p in (ROOT / pkg).rglob("__init__.py"))
+
+
+@pytest.mark.parametrize("package", _package_dirs(), ids=lambda p: p.relative_to(ROOT).as_posix())
+def test_a_package_docstring_names_every_public_module(package):
+    doc = ast.get_docstring(ast.parse((package / "__init__.py").read_text())) or ""
+    dotted = package.relative_to(ROOT).as_posix().replace("/", ".")
+    for f in sorted(package.glob("*.py")):
+        name = f.stem
+        if name.startswith("_"):
+            continue
+        named = (f"`{name}`" in doc or f"`{name}.py`" in doc or f"`{dotted}.{name}`" in doc
+                 or f":mod:`{dotted}.{name}`" in doc or f"``{dotted}.{name}``" in doc
+                 or f"``{name}``" in doc or f":mod:`.{name}`" in doc)
+        assert named, f"{dotted}'s docstring does not name its module {name}"

@@ -67,7 +67,7 @@ def test_a_perfect_record_gives_every_lines_offset_on_the_nominal_grid(tdi_model
     smp = tdi_sampling(m.imager, plan.line_rate_hz, m.scenario.product.samples)
     lines = np.arange(plan.n_lines)
     probes = np.array([plan.cols[0], plan.cols[-1]], dtype=np.float64)
-    truth = line_offset_px(m.camera, m.imager, smp, plan.t0_s, lines, probes,
+    truth = line_offset_px(m.main_camera, m.imager, smp, plan.t0_s, lines, probes,
                            m.terrain.height_at, stage).mean(axis=1)
     est = line_offsets(plan, perfect_jitter(m, _record(m)), stage)
     err = (est - truth) - (est - truth).mean(axis=0)  # the constant: ground control's
@@ -83,7 +83,7 @@ def test_a_frame_offset_has_the_frame_signs():
     assert plan.kind == "frame" and isinstance(plan, ProductPlan)
     smp = frame_sampling(m.imager, 16)
     centre = np.array([[plan.rows.mean(), plan.cols.mean()]])
-    truth = frame_offset_px(m.camera, m.imager, smp, plan.t0_s, centre, m.terrain.height_at)[0]
+    truth = frame_offset_px(m.main_camera, m.imager, smp, plan.t0_s, centre, m.terrain.height_at)[0]
     est = line_offsets(plan, perfect_jitter(m, _record(m)), None)[0]
     # the quickstart's record counts from frame 0's exposure; the truth from the nominal pose
     # (the 2 Hz pitch moves the frame by ~0.6 px): the same up to that one constant, which the

@@ -9,9 +9,8 @@ from scipy.ndimage import map_coordinates, spline_filter
 
 from camera.geometry import FocalPlane, Pose
 from camera.imager import FrameImager, TdiImager
+from camera.linescan import imager_camera as icam
 from camera.linescan import (
-    ground_points,
-    imager_camera,
     line_offset_px,
     subpixel_lattice,
     tdi_sampling,
@@ -113,10 +112,11 @@ def test_truth_offset_signs_for_stage_and_nominal():
     rate = 8296.0
     smp = tdi_sampling(IMAGER, rate, S)
     lines = np.arange(0, 40, 7)
-    zero = line_offset_px(cam, IMAGER, smp, -0.01, lines, COLS[::40], height_fn, nominal=True)
+    zero = line_offset_px(icam(cam, IMAGER), IMAGER, smp, -0.01, lines, COLS[::40], height_fn,
+                          nominal=True)
     assert np.abs(zero).max() < 1e-7
     stage = (0.25, -0.4)
-    off = line_offset_px(cam, IMAGER, smp, -0.01, lines, COLS[::40], height_fn,
+    off = line_offset_px(icam(cam, IMAGER), IMAGER, smp, -0.01, lines, COLS[::40], height_fn,
                          stage_offset_px=lambda t: np.broadcast_to(stage, t.shape + (2,)),
                          nominal=True)
     # rows per line ~1 (synchronous within the 8296 Hz guess): 2 % tolerance
@@ -126,7 +126,7 @@ def test_truth_offset_signs_for_stage_and_nominal():
     from camera.linescan import frame_offset_px, frame_sampling
 
     fim = FrameImager(rows=64, cols=64, exposure_s=1e-3)
-    foff = frame_offset_px(cam, fim, frame_sampling(fim, 4), 0.0,
+    foff = frame_offset_px(icam(cam, fim), fim, frame_sampling(fim, 4), 0.0,
                            np.array([[0.0, 0.0], [63.0, 40.0]]), height_fn,
                            stage_offset_px=lambda t: np.broadcast_to(stage, t.shape + (2,)),
                            nominal=True)
@@ -162,10 +162,11 @@ def test_static_strip_lines_sit_where_the_camera_model_says(caster):
     from scene.strip import render_strip
 
     cam = make_camera()
-    res = render_strip(caster, cam, IMAGER, 0.0, 1, COLS[:4], S, nominal=True)  # the rate
+    res = render_strip(caster, icam(cam, IMAGER), IMAGER, 0.0, 1, COLS[:4], S,
+                       nominal=True)  # the rate
     rate = res.line_rate_hz
     t0 = t0_for(cam, rate)
-    static = render_strip(caster, cam, IMAGER, t0, N_LINES, COLS, S, nominal=True)
+    static = render_strip(caster, icam(cam, IMAGER), IMAGER, t0, N_LINES, COLS, S, nominal=True)
     assert static.hits == static.rays and static.hit_fraction > 0.999999
     assert np.isfinite(static.radiance).all()
     lines = np.arange(N_LINES)
@@ -173,7 +174,7 @@ def test_static_strip_lines_sit_where_the_camera_model_says(caster):
     def ref(dl, dc):
         """The camera model's static strip: the analytic albedo at the float64 ground
         points of every sample, lines shifted by dl (L,), columns by dc (L,)."""
-        c2 = imager_camera(cam, IMAGER)
+        c2 = icam(cam, IMAGER)
         smp = tdi_sampling(IMAGER, rate, S)
         t = smp.times_s(t0, lines + dl)  # (L, S)
         det = smp.detector_rc(COLS.astype(float))  # (S, C, 2)
@@ -181,7 +182,7 @@ def test_static_strip_lines_sit_where_the_camera_model_says(caster):
         det[..., 1] += dc[:, None, None]
         poses = c2.pose(t, nominal=True)
         p4 = Pose(poses.position_m[:, :, None], poses.enu_from_cam[:, :, None])
-        x = ground_points(p4, c2.focal_plane, det, height_fn)
+        x = c2.ground_points_posed(p4, det, height_fn)
         return albedo_fn(x[..., 0], x[..., 1]).mean(axis=1)
 
     d = fit_line_shifts(static.radiance.astype(np.float64), ref)
@@ -203,12 +204,14 @@ def jitter_strips(caster):
     jit = (JitterTerm("pitch", 130.0, JITTER_PX * ifov, 0.4),
            JitterTerm("roll", 97.0, JITTER_PX * ifov, 1.3))
     cam = make_camera(jit)
-    rate = render_strip(caster, cam, IMAGER, 0.0, 1, COLS[:4], S, nominal=True).line_rate_hz
+    rate = render_strip(caster, icam(cam, IMAGER), IMAGER, 0.0, 1, COLS[:4], S,
+                        nominal=True).line_rate_hz
     t0 = t0_for(cam, rate)
     margin = 4  # the static strip is rendered wider, so it can be interpolated at l + off
-    static = render_strip(caster, cam, IMAGER, t0 - margin / rate, N_LINES + 2 * margin,
+    static = render_strip(caster, icam(cam, IMAGER), IMAGER, t0 - margin / rate,
+                          N_LINES + 2 * margin,
                           np.arange(COLS[0] - margin, COLS[-1] + margin + 1), S, nominal=True)
-    true = render_strip(caster, cam, IMAGER, t0, N_LINES, COLS, S, nominal=False,
+    true = render_strip(caster, icam(cam, IMAGER), IMAGER, t0, N_LINES, COLS, S, nominal=False,
                         lines_per_chunk=48)
     return cam, rate, t0, margin, static, true
 
@@ -266,7 +269,8 @@ def test_closed_loop_stage_offsets_match_the_truth(caster, jitter_strips):
     from scene.strip import render_strip
 
     cam, rate, t0, margin, static, true = jitter_strips
-    closed = render_strip(caster, cam, IMAGER, t0, N_LINES, COLS, S, stage_offset_px=stage_fn)
+    closed = render_strip(caster, icam(cam, IMAGER), IMAGER, t0, N_LINES, COLS, S,
+                          stage_offset_px=stage_fn)
     measured = measure_against_static(closed.radiance, static, margin)
     rms = np.sqrt(np.mean((measured - closed.line_offset_px) ** 2, axis=0))
     assert rms.max() < 0.01, rms
@@ -280,7 +284,7 @@ def test_chunks_resume_identically(caster, jitter_strips):
     from scene.strip import iter_strip
 
     cam, rate, t0, _, _, true = jitter_strips
-    chunks = list(iter_strip(caster, cam, IMAGER, t0, N_LINES, COLS, S, first_line=96,
+    chunks = list(iter_strip(caster, icam(cam, IMAGER), IMAGER, t0, N_LINES, COLS, S, first_line=96,
                              lines_per_chunk=48))
     assert [c.first_line for c in chunks] == [96]
     assert np.array_equal(chunks[0].radiance, true.radiance[96:])
@@ -294,7 +298,8 @@ def test_misses_are_filled_and_counted(caster):
 
     cam = make_camera()
     wide = TdiImager(cols=512, stages=STAGES)  # 512 px x 0.82 m > 256 m: the edges miss
-    res = render_strip(caster, cam, wide, -0.002, 4, np.arange(0, 512, 2), 2, nominal=True)
+    res = render_strip(caster, icam(cam, wide), wide, -0.002, 4, np.arange(0, 512, 2), 2,
+                       nominal=True)
     assert np.isfinite(res.radiance).all()
     assert 0.3 < res.hit_fraction < 0.7 and res.hits == res.first_hits
     # filled from the nearest hit of its own row
@@ -327,7 +332,8 @@ def test_mean_level_matches_a_tracker_render():
         caster = RayCaster(r, batch_rays=1 << 16, path=path)
         assert caster.path == path
         assert 0.7 < caster.sky_view_mean < 0.98  # the bake did something
-        res = render_frame(caster, cam, im, 0.0, np.arange(n), np.arange(n), 8, nominal=True)
+        res = render_frame(caster, icam(cam, im), im, 0.0, np.arange(n), np.arange(n), 8,
+                           nominal=True)
         assert res.hit_fraction == 1.0
         assert res.radiance.mean() == pytest.approx(frame.mean(), rel=0.01)
         assert np.corrcoef(res.radiance.ravel(), frame.ravel())[0, 1] > 0.9
@@ -338,9 +344,9 @@ def test_mean_level_matches_a_tracker_render():
 
 def test_expose_as_the_tracker_frames():
     """Optics MTF, electrons, noise and quantisation through the sensor model, seeded."""
+    from camera.exposure import expose
     from camera.optics import Optics
     from camera.sensor import Radiometry, SensorModel
-    from scene.strip import expose
 
     rad = 0.08 + 0.02 * np.sin(np.arange(64 * 64).reshape(64, 64) / 7.0)
     sensor = SensorModel(mean_signal_dn=400.0, noise_sigma_dn=2.0)
@@ -379,9 +385,10 @@ def test_frame_jitter_offset_matches_the_truth(caster):
     cam = CameraModel(orbit, att, frame, FocalPlane(10.0, 12e-6, 96, 96))
     n, m, t0 = 96, 4, 0.004
     small, big = FrameImager(n, n, 1e-3), FrameImager(n + 2 * m, n + 2 * m, 1e-3)
-    static = render_frame(caster, cam, big, t0, np.arange(n + 2 * m), np.arange(n + 2 * m), S,
+    static = render_frame(caster, icam(cam, big), big, t0, np.arange(n + 2 * m),
+                          np.arange(n + 2 * m), S,
                           nominal=True)
-    true = render_frame(caster, cam, small, t0, np.arange(n), np.arange(n), S)
+    true = render_frame(caster, icam(cam, small), small, t0, np.arange(n), np.arange(n), S)
     assert true.hit_fraction > 0.999999 and static.hit_fraction > 0.999999
     coef = spline_filter(static.radiance.astype(np.float64), order=5)
     rr, cc = np.mgrid[0:n, 0:n] + float(m)
@@ -429,7 +436,7 @@ def test_clouds_take_the_cloud_albedo_and_cast_shadows():
     with pytest.raises(ValueError, match="clouds"):
         RayCaster(r, path="terrain", sky_view=caster.sky_view)
     im = FrameImager(rows=n, cols=n, exposure_s=1e-6)
-    res = render_frame(caster, cam, im, 0.0, np.arange(n), np.arange(n), 4, nominal=True)
+    res = render_frame(caster, icam(cam, im), im, 0.0, np.arange(n), np.arange(n), 4, nominal=True)
     assert res.hit_fraction > 0.999999
     assert np.mean(res.radiance > 0.2) > 0.03  # cloud tops (albedo 0.8) in view
     assert res.radiance.mean() == pytest.approx(frame.mean(), rel=0.02)
@@ -447,10 +454,10 @@ def test_stepped_clock_off_rate_offsets_match_the_truth(caster):
                        JitterTerm("roll", 97.0, JITTER_PX * 1.2e-6, 1.3)))
     rate, m = 8296.0 * 1.01, 4
     t0 = -(N_LINES / 2 + 16) / rate
-    static = render_strip(caster, cam, im, t0 - m / rate, N_LINES + 2 * m,
+    static = render_strip(caster, icam(cam, im), im, t0 - m / rate, N_LINES + 2 * m,
                           np.arange(COLS[0] - m, COLS[-1] + m + 1), S, nominal=True,
                           line_rate_hz=rate)
-    true = render_strip(caster, cam, im, t0, N_LINES, COLS, S, line_rate_hz=rate)
+    true = render_strip(caster, icam(cam, im), im, t0, N_LINES, COLS, S, line_rate_hz=rate)
     assert true.line_rate_hz == rate
     err = measure_against_static(true.radiance, static, m) - true.line_offset_px
     assert np.sqrt(np.mean(err**2, axis=0)).max() < 0.01

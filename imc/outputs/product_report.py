@@ -1,7 +1,7 @@
 """The main imager's product in a run's outputs: the quicklook (products side by side and the
 per-line offsets), the report's quality and geometry tables, the Rerun recording's images and
 offset series. Reads ``product/product.npz`` and metrics.json's ``product`` section
-(:mod:`imc.wiring.product` writes them)."""
+(:mod:`imc.outputs.product_files` writes them from :mod:`imc.wiring.product`'s result)."""
 
 from __future__ import annotations
 
@@ -37,9 +37,25 @@ def quicklook_path(run_dir: Path) -> Path | None:
     return path if path.exists() else None
 
 
+def quicklook_panels(run_dir: Path) -> dict[str, np.ndarray]:
+    """The quicklook's panels as drawn: each shown product of the scene (a long strip: its
+    middle square) on one 8-bit grey scale, the static product's 1-99 % range; {} without a
+    product."""
+    z = _load(run_dir)
+    if z is None:
+        return {}
+    static = z["scene/static"]
+    h, w = static.shape
+    rows = slice((h - w) // 2, (h + w) // 2) if h > 2 * w else slice(None)
+    lo, hi = np.nanpercentile(static, [1, 99])
+    scale = 255.0 / max(hi - lo, 1e-12)
+    return {n: np.clip((np.nan_to_num(z[f"scene/{n}"][rows], nan=lo) - lo) * scale, 0,
+                       255).astype(np.uint8) for n in SHOWN if f"scene/{n}" in z}
+
+
 def write_quicklook(run_dir: Path) -> Path | None:
-    """product/quicklook.png: the scene's products side by side (one grey scale, the static
-    product's 1-99 % range) over the per-line offsets, true and from the record."""
+    """product/quicklook.png: the scene's products side by side (:func:`quicklook_panels`)
+    over the per-line offsets, true and from the record."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -48,20 +64,14 @@ def write_quicklook(run_dir: Path) -> Path | None:
     z = _load(run_dir)
     if z is None:
         return None
-    names = [n for n in SHOWN if f"scene/{n}" in z]
-    static = z["scene/static"]
-    h, w = static.shape
-    rows = slice((h - w) // 2, (h + w) // 2) if h > 2 * w else slice(None)  # a long strip:
-    # its middle square
-    lo, hi = np.nanpercentile(static, [1, 99])
+    panels = quicklook_panels(run_dir)
     side = 2.6  # inches a product
-    aspect = static[rows].shape[0] / w
-    fig = plt.figure(figsize=(side * len(names), side * min(aspect, 2.0) + 2.6), dpi=100)
-    grid = fig.add_gridspec(2, len(names), height_ratios=[side * min(aspect, 2.0), 2.6])
-    for i, name in enumerate(names):
+    aspect = next(iter(panels.values())).shape[0] / z["scene/static"].shape[1]
+    fig = plt.figure(figsize=(side * len(panels), side * min(aspect, 2.0) + 2.6), dpi=100)
+    grid = fig.add_gridspec(2, len(panels), height_ratios=[side * min(aspect, 2.0), 2.6])
+    for i, (name, img) in enumerate(panels.items()):
         ax = fig.add_subplot(grid[0, i])
-        ax.imshow(z[f"scene/{name}"][rows], cmap="gray", vmin=lo, vmax=hi,
-                  interpolation="nearest")
+        ax.imshow(img, cmap="gray", vmin=0, vmax=255, interpolation="nearest")
         ax.set_title(TITLES.get(name, name), fontsize=8)
         ax.axis("off")
     kinds = [k for k in ("open", "closed") if f"offset/true/{k}" in z]

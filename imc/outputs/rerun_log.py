@@ -215,20 +215,11 @@ def _terrain_mesh(m: Models, n_max: int = 64) -> dict:
             "vertex_colors": np.repeat(alb.reshape(-1, 1), 3, axis=1)}
 
 
-def _ground_points(cam, pixel_rc: np.ndarray, t_s: np.ndarray, height_fn,
-                   iterations: int = 8) -> np.ndarray:
-    """ENU points (T, P, 3) seen at pixels (P, 2) at each of the times (T,): the ray-terrain
-    intersection of :meth:`camera.motion.CameraModel.ground_points`, for all times at once."""
-    pose = cam.pose(np.asarray(t_s, dtype=np.float64))
-    d = np.einsum("tij,pj->tpi", pose.enu_from_cam, cam.focal_plane.cam_direction(pixel_rc))
-    c = pose.position_m[:, None, :]
-    h = np.zeros(d.shape[:-1])
-    for _ in range(iterations):
-        s = (h - c[..., 2]) / d[..., 2]
-        p = c + s[..., None] * d
-        h = height_fn(p[..., 0], p[..., 1])
-    s = (h - c[..., 2]) / d[..., 2]
-    return c + s[..., None] * d
+def _ground_points(cam, pixel_rc: np.ndarray, t_s: np.ndarray, height_fn) -> np.ndarray:
+    """ENU points (T, P, 3) seen at pixels (P, 2) at each of the times (T,)
+    (:meth:`camera.motion.CameraModel.ground_points`, all times at once)."""
+    return cam.ground_points(np.asarray(pixel_rc, dtype=np.float64),
+                             np.asarray(t_s, dtype=np.float64), height_fn)
 
 
 def _footprint(cam, t_s: np.ndarray, height_fn) -> np.ndarray:

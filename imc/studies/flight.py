@@ -179,12 +179,7 @@ def line_motion(m: Models, t_s: np.ndarray, cfg: FlightConfig,
     grid = np.unique(np.concatenate([np.arange(0.0, float(t.max()) + dt, dt), t]))
     mids = 0.5 * (grid[1:] + grid[:-1])
     pose = cam.pose(mids, nominal)
-    ray = np.einsum("nij,j->ni", pose.enu_from_cam, fp.cam_direction(fp.center_px))
-    h = np.zeros(len(mids))
-    for _ in range(8):  # the ray's crossing of the terrain, as CameraModel.ground_points
-        ground = pose.position_m + ((h - pose.position_m[:, 2]) / ray[:, 2])[:, None] * ray
-        h = m.terrain.height_at(ground[:, 0], ground[:, 1])
-    ground = pose.position_m + ((h - pose.position_m[:, 2]) / ray[:, 2])[:, None] * ray
+    ground = cam.ground_points_posed(pose, fp.center_px, m.terrain.height_at)
     ends = cam.pose(grid, nominal)
     step = project(ground, ends[1:], fp) - project(ground, ends[:-1], fp)
     pos = np.vstack([np.zeros((1, 2)), np.cumsum(step, axis=0)])

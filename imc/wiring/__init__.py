@@ -1,5 +1,8 @@
 """One run's wiring: models and loop blocks built from a scenario (:mod:`.build`), its size
-estimate (:mod:`.budget`), the rendered tracker plant (:mod:`.rendered_plant`), the truth
-(:mod:`.truth`), the main imager's blur study (:mod:`.blur`), named random streams
-(:mod:`.streams`), checkpoints (:mod:`.checkpoint`) and the device emulator's run
-(:mod:`.emulator`). Writes no report; imports nothing from outputs, workflow or studies."""
+estimate (:mod:`.budget`) and the correlator device's budget (:mod:`.device_budget`), what a
+run is told before it starts (:mod:`.advisories`), the rendered tracker plant
+(:mod:`.rendered_plant`), the truth (:mod:`.truth`), the main imager's blur from the truth
+(:mod:`.blur`), its rendered study, product and ground processing (:mod:`.product`), named
+random streams (:mod:`.streams`), checkpoints (:mod:`.checkpoint`) and the device emulator's
+run (:mod:`.emulator`). Computes results and returns them labelled; the files, figures and
+report are written by imc.outputs; imports nothing from outputs, workflow or studies."""

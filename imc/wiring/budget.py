@@ -21,6 +21,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from camera.imager import IMAGERS
 from imc.scenario import Scenario, ScenarioError
 
 #: the most tracker frames a run may have without --force (the loop steps frame by frame)
@@ -155,7 +156,7 @@ def _truth_samples(sc: Scenario) -> float:
     t, mi = sc.camera.tracker, sc.camera.main_imager
     span = max(sc.duration_s - mi.start_s, 0.0)
     per_frame = 1.0 / t.frame_rate_hz / sc.metrics.samples_per_frame
-    if mi.kind == "tdi":
+    if IMAGERS[mi.kind].scanning:
         rate = mi.line_rate_hz or _tdi_line_rate_hz(sc)
         window = mi.stages / rate
     else:
@@ -240,10 +241,10 @@ def estimate_run(sc: Scenario) -> RunEstimate:
         reach = _reach_px(sc)
         parts["plant"] = (px * (64.0 + 8.0 * n_key) + 96.0 * frames * 4
                           + 24.0 * (t.rows + 2 * reach) * (t.cols + 2 * reach))
-    if sc.metrics.blur_images and sc.camera.main_imager.kind == "frame":
-        # imc.wiring.blur.main_imager_study: Mitsuba (whatever the plant), the tile's texture, two
-        # BLUR_PATCH_PX films at metrics.blur_spp at most (the edge's film has fewer rows, the
-        # scene patch's fewer samples) and the figure
+    if sc.metrics.blur_images and not IMAGERS[sc.camera.main_imager.kind].scanning:
+        # imc.wiring.product.picture_study: Mitsuba (whatever the plant), the target tile's
+        # texture, a BLUR_PATCH_PX square frame product of the scene and the target at
+        # metrics.blur_spp samples a pixel (upper bound) and the figure
         base = RENDER_BASE_BYTES
         parts["blur images"] = (BLUR_IMAGES_BYTES + 8.0 * texels
                                 + 2 * BLUR_PATCH_PX**2 * (24.0 + 4.0 * sc.metrics.blur_spp))
@@ -298,7 +299,7 @@ def _fields_of(sc: Scenario, part: str) -> str:
                 f"{sc.n_frames:,} frames x {c.n_blocks} blocks")
     if part == "truth":
         mi = sc.camera.main_imager
-        extra = " / camera.main_imager.stages" if mi.kind == "tdi" else ""
+        extra = " / camera.main_imager.stages" if IMAGERS[mi.kind].scanning else ""
         return (f"duration_s x camera.tracker.frame_rate_hz x metrics.samples_per_frame"
                 f"{extra} (truth samples)")
     if part == "frames":

@@ -12,7 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from camera.geometry import FocalPlane
-from camera.imager import FrameImager, MainImager, TdiImager, synchronous_line_rate_hz
+from camera.imager import IMAGERS, MainImager
+from camera.linescan import imager_camera
 from camera.motion import CameraModel
 from camera.optics import Optics
 from camera.sensor import Radiometry, SensorModel
@@ -46,7 +47,6 @@ class Models:
     camera: CameraModel  # the tracker sensor's view
     main_camera: CameraModel  # the main imager's view (same orbit and attitude)
     imager: MainImager
-    line_rate_hz: float | None
     main_velocity_px_s: np.ndarray  # predicted (nominal) image velocity at the imager centre
     terrain: Terrain
     clouds: CloudLayer | None
@@ -77,14 +77,17 @@ class Models:
         off = self.scenario.camera.main_imager.center_offset_px
         return (float(pp[0] + off[0]), float(pp[1] + off[1]))
 
+    @property
+    def line_rate_hz(self) -> float | None:
+        """The main imager's clocked line rate, Hz (None: a frame imager)."""
+        return self.imager.line_rate_hz
+
     def charge_px(self, t_s: np.ndarray) -> np.ndarray:
         """Motion (..., 2) the main imager follows by itself since t = 0: TDI charge transfer
-        along rows (continuous: the stage follows the mean charge motion), zero for a frame
-        imager."""
+        along rows at its line rate, continuous (the stage follows the mean charge motion),
+        zero for a frame imager."""
         t = np.asarray(t_s, dtype=np.float64)
-        if self.line_rate_hz is None:
-            return np.zeros(t.shape + (2,))
-        return np.stack([t * self.line_rate_hz, np.zeros_like(t)], axis=-1)
+        return t[..., None] * np.asarray(self.imager.charge_velocity_px_s)
 
 
 def build_orbit(sc: Scenario, terrain: Terrain | None = None) -> EarthOrbit:
@@ -261,24 +264,15 @@ def build_models(sc: Scenario, light: bool = False) -> Models:
             raise ScenarioError("attitude.mode: the scene is below 20 deg elevation from the "
                                 "satellite at t = 0; change orbit or orbit.epoch_utc")
     mi = c.main_imager
-    if mi.kind == "tdi":
-        imager: MainImager = TdiImager(
-            stages=mi.stages, line_rate_hz=mi.line_rate_hz, clock_phases=mi.clock_phases,
-            center_offset_px=mi.center_offset_px)
-    else:
-        imager = FrameImager(exposure_s=mi.exposure_s, center_offset_px=mi.center_offset_px)
-    main_cam = dataclasses.replace(cam, focal_plane=imager.focal_plane(c.focal_length_m,
-                                                                      c.pixel_pitch_m))
+    # the imager's camera: built here once, asked for as Models.main_camera
+    imager: MainImager = IMAGERS[mi.kind].from_config(mi)
+    main_cam = imager_camera(cam, imager)
     velocity = main_cam.velocity_field_px_s(main_cam.focal_plane.center_px, 0.0,
                                             terrain.height_at, nominal=True)[0]
-    line_rate = None
-    if mi.kind == "tdi":
-        line_rate = mi.line_rate_hz
-        if line_rate is None:
-            try:
-                line_rate = synchronous_line_rate_hz(velocity)
-            except ValueError as e:
-                raise ScenarioError(f"camera.main_imager: {e}") from None
+    try:
+        imager = imager.with_line_rate(velocity)
+    except ValueError as e:
+        raise ScenarioError(f"camera.main_imager: {e}") from None
     o = c.optics
     frame_t = np.arange(sc.n_frames) / t.frame_rate_hz
     corners = block_grid(t.rows, t.cols, sc.correlator.block_px, sc.correlator.n_blocks)
@@ -287,7 +281,6 @@ def build_models(sc: Scenario, light: bool = False) -> Models:
         camera=cam,
         main_camera=main_cam,
         imager=imager,
-        line_rate_hz=line_rate,
         main_velocity_px_s=velocity,
         terrain=terrain,
         clouds=clouds,

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from camera.exposure import expose
 from compensation.analytic_plant import AnalyticPlant
 from compensation.blocks import BlockMeasurements
 from correlator.tracker import BlockTracker, extract_blocks
@@ -30,15 +31,12 @@ KEYFRAMES_BENT = 33
 
 
 def expose_frame(m: Models, radiance: np.ndarray, gain: float, rng) -> np.ndarray:
-    """Radiance -> optics MTF -> photo-electrons -> digital frame."""
-    img = m.optics.apply(radiance)
-    if m.scenario.camera.tracker.signal == "radiometric":
-        electrons = m.radiometry.electrons_per_s(
-            img, m.optics.f_number, m.optics.transmission, m.optics.pixel_pitch_m,
-            m.optics.wavelength_m) * m.exposure_s
-    else:
-        electrons = img * gain
-    return m.sensor.expose(electrons, rng, m.exposure_s)
+    """A tracker frame: radiance -> optics MTF -> photo-electrons -> digital frame
+    (:func:`camera.exposure.expose`, radiometric or at the 'mean_level' gain)."""
+    radiometric = m.scenario.camera.tracker.signal == "radiometric"
+    return expose(radiance, m.optics, m.sensor, rng, m.exposure_s,
+                  radiometry=m.radiometry if radiometric else None,
+                  gain_e=None if radiometric else gain)
 
 
 class TrackerPlant:

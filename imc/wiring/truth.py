@@ -2,7 +2,9 @@
 
 ``motion_px`` samples the main imager's integration windows (from camera.main_imager.start_s
 on); the stage comes from the actuator's recorded trajectory at the same instants (it moves
-inside exposures); ``meas_px`` is the true shift of every tracker measurement.
+inside exposures); ``meas_px`` is the true shift of every tracker measurement;
+:func:`jitter_px` is the true motion against the nominal (jitter-free) pose, what a perfect
+record of the jitter holds (the main imager's product compares its record with it).
 """
 
 from __future__ import annotations
@@ -87,8 +89,8 @@ def compute_truth(m: Models, rec: LoopRecord, trajectory: Trajectory) -> Truth:
     start = sc.camera.main_imager.start_s
     cam = m.main_camera
     centre = cam.focal_plane.center_px[None]
-    tdi = m.line_rate_hz is not None
-    window = m.imager.integration_s(m.line_rate_hz)
+    tdi = m.imager.scanning
+    window = m.imager.integration_s()
     span = duration - start
     n_win = max(1, int(np.floor(span / window + 1e-9)))
     if not tdi and window > span:
@@ -109,7 +111,7 @@ def compute_truth(m: Models, rec: LoopRecord, trajectory: Trajectory) -> Truth:
                       pose.enu_from_cam[n_win:].reshape(n_win, per, 3, 3))
         pw = project(ground[:, None, :], moving, cam.focal_plane)  # (W, per, 2)
         motion = (pw - p0[:, None, :]).reshape(-1, 2)
-        charge = m.imager.charge_motion_px(t_s - starts[win], m.line_rate_hz)
+        charge = m.imager.charge_motion_px(t_s - starts[win])
     else:
         ground = cam.ground_points(centre, 0.0, m.terrain.height_at)
         ref = cam.image_motion_px(ground, exposure_times(m, 0, sc.metrics.samples_per_frame),
@@ -120,3 +122,15 @@ def compute_truth(m: Models, rec: LoopRecord, trajectory: Trajectory) -> Truth:
                            for t0 in m.frame_t_s])
     return Truth(t_s, win, window, motion, charge, measurement_truth(m, rec, stage_mean),
                  stage_mean, tdi)
+
+
+def jitter_px(m: Models, t_s: np.ndarray) -> np.ndarray:
+    """The true image motion (T, 2) px at the main imager's centre against the nominal pose
+    at times t_s (T,): where the true camera sees the ground the nominal one sees at the
+    centre, projected, less the centre (the jitter alone: orbit and attitude cancel)."""
+    cam = m.main_camera
+    fp = cam.focal_plane
+    t = np.asarray(t_s, dtype=np.float64)
+    centre = np.broadcast_to(fp.center_px, (len(t), 2))
+    g = cam.ground_points_posed(cam.pose(t, nominal=True), centre, m.terrain.height_at)
+    return project(g, cam.pose(t), fp) - centre

@@ -1,0 +1,130 @@
+"""The main imager's product written from its labelled result
+(:func:`imc.wiring.product.product_dataset`): metrics.json's ``product`` section
+(:func:`product_metrics`, every key as before), and in ``product/`` the GeoTIFFs of the
+scene's products, ``lines.csv`` (each line's offsets) and ``product.npz`` (all arrays), each
+written atomically (:func:`write_product`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from imc.io import atomic_write, write_csv, write_npz
+
+
+def _value(v):
+    """A Dataset value as JSON: NaN -> None, numpy scalars -> float, arrays -> lists."""
+    a = np.asarray(v, dtype=np.float64)
+    if a.ndim == 0:
+        return None if not np.isfinite(a) else float(a)
+    return [_value(x) for x in a]
+
+
+def _geometry(ds: xr.Dataset, name: str) -> dict:
+    g = ds.sel(moving=name)
+    out = {}
+    for stage in ds.stage.values:
+        s = g.sel(stage=stage)
+        out[str(stage)] = {"rms_px": _value(s.geometry_rms_px),
+                           "peak_to_peak_px": _value(s.geometry_peak_to_peak_px),
+                           "bias_px": _value(s.geometry_bias_px),
+                           "max_abs_px": _value(s.geometry_max_abs_px),
+                           "n": int(s.geometry_n)}
+    out["ground_control_px"] = _value(g.ground_control_px)
+    return out
+
+
+def _quality(ds: xr.Dataset, name: str) -> dict:
+    q = ds.sel(version=name)
+    pairs = ("mtf_nyquist", "rer", "overshoot_h")
+    out = {k: _value(q[k]) for k in pairs}
+    out.update({k: _value(q[k]) for k in ("noise_sigma", "noise_gain", "snr", "niirs",
+                                          "gsd_m", "elevation_rad", "psnr_db", "ssim",
+                                          "niirs_loss")})
+    return out
+
+
+def restoration_gain(quality: dict) -> dict:
+    """What the deconvolution gained on each corrected product: MTF at Nyquist (along,
+    across) before and after, noise gain, overshoot."""
+    out = {}
+    for name in ("open", "closed"):
+        a, b = quality.get(f"{name}_gc"), quality.get(f"{name}_gc_restored")
+        if a is None or b is None:
+            continue
+        out[name] = {"mtf_nyquist_before": a["mtf_nyquist"], "mtf_nyquist_after":
+                     b["mtf_nyquist"], "noise_gain": (b["noise_sigma"] / a["noise_sigma"]
+                                                      if a["noise_sigma"] else None),
+                     "overshoot_h": b["overshoot_h"]}
+    return out
+
+
+def product_metrics(ds: xr.Dataset, files: list[Path] | None = None) -> dict:
+    """metrics.json's ``product`` section from the labelled result (the keys of earlier
+    imcsim runs kept: expectations, sweeps and users' CI read them)."""
+    a = ds.attrs
+    render_s = float(a["render_s"])
+    quality = {str(n): _quality(ds, str(n)) for n in ds.version.values}
+    return {
+        "kind": a["kind"], "lines": int(a["lines"]), "cols": int(a["cols"]),
+        "samples": int(a["samples"]), "start_s": float(a["start_s"]),
+        "integration_s": float(a["integration_s"]), "line_rate_hz": a["line_rate_hz"],
+        "gsd_m": float(a["gsd_m"]), "rays": int(a["rays"]),
+        "hit_fraction": float(a["hit_fraction"]), "scene_build_s": float(a["scene_build_s"]),
+        "render_s": render_s, "rays_per_s": float(a["rays"] / max(render_s, 1e-9)),
+        "ground_s": float(a["ground_s"]), "quality_s": float(a.get("quality_s", 0.0)),
+        "record": {"rms_px": _value(ds.record_rms_px), "samples": int(a["record_samples"]),
+                   "rate_hz": float(a["record_rate_hz"])},
+        "geometry": {str(n): _geometry(ds, str(n)) for n in ds.moving.values},
+        "quality": quality,
+        "restoration": restoration_gain(quality),
+        "files": [str(f) for f in (files or [])],
+    }
+
+
+def write_product(ds: xr.Dataset, folder: Path) -> list[Path]:
+    """``folder``'s GeoTIFFs of the scene's products (a corrected one on the nominal grid
+    displaced by its constant offset ``shift_px``, (row, col) px), lines.csv and
+    product.npz; returns the paths written."""
+    from affine import Affine
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    files = []
+    transform, crs = Affine(*ds.attrs["transform"]), ds.attrs["crs"]
+    for name in ds.version.values:
+        base = str(name).split("_gc")[0]
+        sh = (ds.shift_px.sel(moving=base).values if "_gc" in str(name)
+              else np.zeros(2))
+        path = folder / f"{name}.tif"
+        _write_tif(path, ds.image.sel(version=name).values.astype(np.float32),
+                   transform @ Affine.translation(float(sh[1]), float(sh[0])), crs)
+        files.append(path)
+    moving = [str(n) for n in ds.moving.values]
+    header = ["line", "t_s"] + [f"{k}_{n}_{a}" for k in ("true", "record", "perfect")
+                                for n in moving for a in ("row", "col")]
+    cols = [np.arange(ds.sizes["line"]), ds.line_t_s.values]
+    for src in ("true", "record", "perfect"):
+        for n in moving:
+            off = ds.offset_px.sel(source=src, moving=n).values
+            cols += [off[:, 0], off[:, 1]]
+    write_csv(folder / "lines.csv", header, np.column_stack(cols).tolist())
+    files.append(folder / "lines.csv")
+    arrays = {f"scene/{n}": ds.image.sel(version=n).values for n in ds.version.values}
+    arrays |= {f"target/{n}": ds.target_image.sel(version=n).values
+               for n in ds.version.values}
+    for src in ("true", "record", "perfect"):
+        arrays |= {f"offset/{src}/{n}": ds.offset_px.sel(source=src, moving=n).values
+                   for n in moving}
+    write_npz(folder / "product.npz", **arrays, line_t_s=ds.line_t_s.values)
+    files.append(folder / "product.npz")
+    return files
+
+
+def _write_tif(path: Path, img: np.ndarray, transform, crs: str) -> None:
+    from scene.geotiff import write_geotiff
+
+    atomic_write(path, lambda tmp: write_geotiff(tmp, img, 0.0, 0.0, 1.0, 1.0, crs=crs,
+                                                 nodata=float("nan"), transform=transform))

@@ -9,6 +9,8 @@ leaves ``r - c``. Applying an estimate whole adds its error everywhere, its low-
 drift included; applying nothing leaves motion the ground measured well. The blend decides
 per axis and per frequency band:
 
+* the constant (the DCT's k = 0 term) is left out of everything: no record sees it and
+  ground control fixes it, so every figure here is "after a constant";
 * the series are split into bands by a complementary crossover filter on the DCT-II
   (even extension, so a drift does not wrap round): masks ``m_b(f)`` with raised-cosine
   transitions of relative half-width ``width`` around each crossover, summing to 1 at
@@ -96,16 +98,19 @@ def band_split(x_px, dt_s: float, crossover_hz: Sequence[float],
 
 
 def band_error_variance(cov_px2, dt_s: float, crossover_hz: Sequence[float],
-                        width: float = 0.25) -> np.ndarray:
+                        width: float = 0.25, *, skip_constant: bool = False) -> np.ndarray:
     """Predicted error variance per band and axis (n_bands, 2) px^2 of a series whose error
-    covariance is ``cov_px2`` (2, n, n): ``tr(F_b C F_b^T) / n``."""
+    covariance is ``cov_px2`` (2, n, n): ``tr(F_b C F_b^T) / n``; ``skip_constant`` leaves
+    the series' mean (the DCT's k = 0 term) out."""
     c = np.asarray(cov_px2, dtype=np.float64)
     if c.ndim != 3 or c.shape[0] != 2 or c.shape[1] != c.shape[2]:
         raise ValueError(f"cov_px2 must have shape (2, n, n), got {c.shape}")
     n = c.shape[1]
     m = band_masks(n, dt_s, crossover_hz, width)
     dcd = fft.dct(fft.dct(c, type=2, norm="ortho", axis=1), type=2, norm="ortho", axis=2)
-    diag = np.diagonal(dcd, axis1=1, axis2=2)  # (2, n)
+    diag = np.diagonal(dcd, axis1=1, axis2=2).copy()  # (2, n)
+    if skip_constant:
+        diag[:, 0] = 0.0
     return (m**2 @ diag.T) / n
 
 
@@ -113,8 +118,8 @@ def band_error_variance(cov_px2, dt_s: float, crossover_hz: Sequence[float],
 class Blend:
     """The blended correction and its bookkeeping, per band b and axis (row, col).
 
-    ``correction_px`` (n, 2) px, to subtract from the product's error (apply as the
-    estimate would be applied); ``gain`` (n_bands, 2); ``weights`` (n_estimates, n_bands, 2)
+    ``correction_px`` (n, 2) px, zero-mean, to subtract from the product's error (apply it as
+    the estimate would be applied); ``gain`` (n_bands, 2); ``weights`` (n_estimates, n_bands, 2)
     the inverse-variance weights; ``signal_var_px2`` S_b, the uncorrected product's estimated
     band variance; ``error_var_px2`` E_b, the combined estimate's; ``after_var_px2`` the
     corrected product's predicted band variance (all (n_bands, 2) px^2).
@@ -130,12 +135,12 @@ class Blend:
 
     @property
     def predicted_before_px(self) -> np.ndarray:
-        """Predicted RMS (2,) px of the uncorrected product (all bands)."""
+        """Predicted RMS (2,) px of the uncorrected product after a constant (all bands)."""
         return np.sqrt(self.signal_var_px2.sum(axis=0))
 
     @property
     def predicted_after_px(self) -> np.ndarray:
-        """Predicted RMS (2,) px of the corrected product (all bands)."""
+        """Predicted RMS (2,) px of the corrected product after a constant (all bands)."""
         return np.sqrt(self.after_var_px2.sum(axis=0))
 
 
@@ -151,7 +156,7 @@ def blend_correction(estimates_px: Sequence, error_cov_px2: Sequence, dt_s: floa
         Estimates of the stage's residual (row, col) px, on a uniform grid of spacing dt_s.
     error_cov_px2 : sequence of array_like
         Each estimate's predicted error: its covariance (2, n, n) px^2, or its band
-        variances (n_bands, 2) px^2 directly.
+        variances (n_bands, 2) px^2 directly (about its mean).
     dt_s : float
         Sample spacing, s.
     crossover_hz : sequence of float
@@ -187,7 +192,8 @@ def blend_correction(estimates_px: Sequence, error_cov_px2: Sequence, dt_s: floa
     for j, c in enumerate(error_cov_px2):
         c = np.asarray(c, dtype=np.float64)
         e = c if c.shape == (nb, 2) else (
-            band_error_variance(c, dt_s, crossover_hz, width) if c.shape == (2, n, n)
+            band_error_variance(c, dt_s, crossover_hz, width, skip_constant=True)
+            if c.shape == (2, n, n)
             else None)
         if e is None or not np.all(np.isfinite(e) & (e >= 0)):
             raise ValueError(f"error_cov_px2[{j}] must be a covariance (2, {n}, {n}) or band "
@@ -198,6 +204,7 @@ def blend_correction(estimates_px: Sequence, error_cov_px2: Sequence, dt_s: floa
     w = inv / inv.sum(axis=0, keepdims=True)
     err = 1.0 / inv.sum(axis=0)
     xc = np.stack([fft.dct(x, type=2, norm="ortho", axis=0) for x in xs])  # (n_est, n, 2)
+    xc[:, 0] = 0.0  # the constant: no record sees it, ground control fixes it
     comb = np.einsum("jba,bk,jka->bka", w, m, xc)  # (nb, n, 2) combined, per band
     power = np.sum(comb**2, axis=1) / n
     sig = np.clip(power - err, 0.0, None)

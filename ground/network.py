@@ -63,6 +63,7 @@ from scipy.sparse import csgraph
 from scipy.sparse import linalg as spla
 
 from ground.aiding import Absolute, GyroAiding
+from ground.record import MotionRecord
 
 GAUGES = ("first", "mean", "none")
 #: sigmas below this are raised to it (a noiseless measurement is weighted as 1e-6 px)
@@ -250,6 +251,34 @@ class NetworkSolution:
         c = self.cov_px2
         v = c[:, i, i] + c[:, j, j] - 2.0 * c[:, i, j]
         return np.sqrt(np.clip(np.moveaxis(v, 0, -1), 0.0, None))
+
+
+    def at(self, t_s) -> tuple[np.ndarray, np.ndarray]:
+        """The series and its predicted error at times ``t_s`` (q,) s (e.g. each line's
+        integration mid-time), linearly interpolated between frames, the covariance carried
+        through the same weights: (s (q, 2[, m]) px, sigma (q, 2) px). Held at the end
+        values outside the frames' span."""
+        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        if t.ndim != 1 or not np.all(np.isfinite(t)):
+            raise ValueError(f"t_s must be a finite 1-D array of times (s), got {t.shape}")
+        tf = self.t_s
+        tc = np.clip(t, tf[0], tf[-1])
+        lo = np.clip(np.searchsorted(tf, tc, side="right") - 1, 0, tf.size - 2)
+        w = (tc - tf[lo]) / (tf[lo + 1] - tf[lo])
+        s = (1 - w)[(...,) + (None,) * (self.s_px.ndim - 1)] * self.s_px[lo] \
+            + w[(...,) + (None,) * (self.s_px.ndim - 1)] * self.s_px[lo + 1]
+        c = self.cov_px2
+        var = ((1 - w) ** 2 * c[:, lo, lo] + w**2 * c[:, lo + 1, lo + 1]
+               + 2 * w * (1 - w) * c[:, lo, lo + 1])
+        return s, np.sqrt(np.clip(var.T, 0.0, None))
+
+    def to_record(self) -> MotionRecord:
+        """The solution as a :class:`ground.record.MotionRecord` (all frames valid, its
+        predicted sigma), for :func:`ground.record.line_motion` (first realisation when
+        batched)."""
+        s = self.s_px if self.s_px.ndim == 2 else self.s_px[..., 0]
+        return MotionRecord(self.t_s, s, np.ones(self.t_s.size, bool),
+                            np.maximum(self.sigma_px, SIGMA_FLOOR_PX))
 
 
 def _difference_operator(n: int, order: int) -> sparse.csr_matrix:

@@ -76,6 +76,13 @@ def test_a_chain_is_todays_cumulative_sum_with_its_random_walk_covariance():
     for ax in range(2):
         np.testing.assert_allclose(sol.cov_px2[ax], var[np.minimum.outer(k, k), ax],
                                    rtol=0, atol=1e-12)
+    # at a time between frames: linear weights, the covariance carried through them
+    tf = sol.t_s
+    s_mid, sig_mid = sol.at([0.25 * tf[10] + 0.75 * tf[11]])
+    np.testing.assert_allclose(s_mid[0], 0.25 * chained[10] + 0.75 * chained[11], atol=1e-12)
+    np.testing.assert_allclose(sig_mid[0] ** 2, var[10] + 0.75**2 * sig[10] ** 2, atol=1e-12)
+    rec = sol.to_record()
+    np.testing.assert_allclose(rec.motion_px, chained, atol=1e-12)
     # the mean gauge is the same solution about its mean
     mean = solve_network(Links.chain(d, sig), n, gauge="mean")
     np.testing.assert_allclose(mean.s_px, chained - chained.mean(axis=0), atol=1e-12)

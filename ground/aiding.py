@@ -301,8 +301,24 @@ class Absolute:
 
 
 def frame_position(t_s, t_frame_s) -> np.ndarray:
-    """Fractional frame positions (m,) of times ``t_s`` on the frame times ``t_frame_s``
-    (linear between frames); a ValueError for a time outside the frames' span."""
+    """Fractional frame positions of times on the frame times (linear between frames).
+
+    Parameters
+    ----------
+    t_s : array_like, (m,)
+        Times, s, inside the frames' span (a ValueError otherwise).
+    t_frame_s : array_like, (N,)
+        Frame times, s, strictly increasing.
+
+    Returns
+    -------
+    numpy.ndarray, (m,)
+        Positions in frames (3.5: half-way between frames 3 and 4).
+
+    References
+    ----------
+    docs/conventions.md, "Time".
+    """
     tf = _check_times(t_frame_s, "t_frame_s")
     t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
     if not np.all(np.isfinite(t)) or t.min() < tf[0] or t.max() > tf[-1]:

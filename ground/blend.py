@@ -88,7 +88,28 @@ def band_masks(n: int, dt_s: float, crossover_hz: Sequence[float],
 
 def band_split(x_px, dt_s: float, crossover_hz: Sequence[float],
                width: float = 0.25) -> np.ndarray:
-    """A series (n, 2) px split into bands (n_bands, n, 2) px that sum back to it."""
+    """A series split into complementary bands that sum back to it.
+
+    Parameters
+    ----------
+    x_px : array_like, (n, 2)
+        The series (row, col) px on a uniform grid.
+    dt_s : float
+        Sample spacing, s.
+    crossover_hz : sequence of float
+        Increasing crossover frequencies, Hz.
+    width : float
+        Relative half-width of the transitions (:func:`band_masks`).
+
+    Returns
+    -------
+    numpy.ndarray, (n_bands, n, 2)
+        The bands, px (orthonormal DCT-II, masked, inverted).
+
+    References
+    ----------
+    Sehn & Miller, AIAA 84-2046 (crossover networks).
+    """
     x = np.asarray(x_px, dtype=np.float64)
     if x.ndim != 2 or x.shape[1] != 2 or not np.all(np.isfinite(x)):
         raise ValueError(f"x_px must be finite with shape (n, 2), got {x.shape}")
@@ -99,9 +120,30 @@ def band_split(x_px, dt_s: float, crossover_hz: Sequence[float],
 
 def band_error_variance(cov_px2, dt_s: float, crossover_hz: Sequence[float],
                         width: float = 0.25, *, skip_constant: bool = False) -> np.ndarray:
-    """Predicted error variance per band and axis (n_bands, 2) px^2 of a series whose error
-    covariance is ``cov_px2`` (2, n, n): ``tr(F_b C F_b^T) / n``; ``skip_constant`` leaves
-    the series' mean (the DCT's k = 0 term) out."""
+    """Predicted error variance per band of a series from its error covariance.
+
+    Parameters
+    ----------
+    cov_px2 : array_like, (2, n, n)
+        The series' error covariance per axis (row, col), px^2.
+    dt_s : float
+        Sample spacing, s.
+    crossover_hz : sequence of float
+        Increasing crossover frequencies, Hz.
+    width : float
+        Relative half-width of the transitions (:func:`band_masks`).
+    skip_constant : bool
+        Leave the series' mean (the DCT's k = 0 term) out.
+
+    Returns
+    -------
+    numpy.ndarray, (n_bands, 2)
+        ``tr(F_b C F_b^T) / n`` = ``sum_k m_b(f_k)^2 (D C D^T)_kk / n``, px^2.
+
+    References
+    ----------
+    Wiener 1949 (band-limited error variance).
+    """
     c = np.asarray(cov_px2, dtype=np.float64)
     if c.ndim != 3 or c.shape[0] != 2 or c.shape[1] != c.shape[2]:
         raise ValueError(f"cov_px2 must have shape (2, n, n), got {c.shape}")

@@ -254,10 +254,26 @@ class NetworkSolution:
 
 
     def at(self, t_s) -> tuple[np.ndarray, np.ndarray]:
-        """The series and its predicted error at times ``t_s`` (q,) s (e.g. each line's
-        integration mid-time), linearly interpolated between frames, the covariance carried
-        through the same weights: (s (q, 2[, m]) px, sigma (q, 2) px). Held at the end
-        values outside the frames' span."""
+        """The series and its predicted error at any times, e.g. each line's integration
+        mid-time.
+
+        Parameters
+        ----------
+        t_s : array_like, (q,)
+            Times, s (frame index when the links had no times); held at the end values
+            outside the frames' span.
+
+        Returns
+        -------
+        s_px : numpy.ndarray, (q, 2[, m])
+            Linearly interpolated between frames, px.
+        sigma_px : numpy.ndarray, (q, 2)
+            Its predicted error, the covariance carried through the same weights, px.
+
+        References
+        ----------
+        ground/record.py (the line model these feed).
+        """
         t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
         if t.ndim != 1 or not np.all(np.isfinite(t)):
             raise ValueError(f"t_s must be a finite 1-D array of times (s), got {t.shape}")
@@ -402,17 +418,13 @@ def _check_connected(a_mat: sparse.csr_matrix, n: int, absolute_rows: np.ndarray
     order = np.lexsort((s_part.col, s_part.row))
     r, c = s_part.row[order], s_part.col[order]
     same = r[1:] == r[:-1]
-    src = list(c[:-1][same])
-    dst = list(c[1:][same])
+    rows, first = np.unique(r, return_index=True)  # each row's first s column
+    tied = absolute_rows[rows]
     ground = n
-    tied = np.unique(r[absolute_rows[r]])
-    first_col = {int(rr): int(cc) for rr, cc in zip(r[::-1], c[::-1], strict=True)}
-    src += [first_col[int(x)] for x in tied]
-    dst += [ground] * tied.size
-    if gauge != "none":
-        src.append(0)
-        dst.append(ground)
-    g = sparse.coo_matrix((np.ones(len(src)), (src, dst)), shape=(n + 1, n + 1))
+    src = [c[:-1][same], c[first][tied], np.zeros(int(gauge != "none"), np.int64)]
+    dst = [c[1:][same], np.full(int(tied.sum()), ground), np.full(int(gauge != "none"), ground)]
+    src, dst = np.concatenate(src), np.concatenate(dst)
+    g = sparse.coo_matrix((np.ones(src.size), (src, dst)), shape=(n + 1, n + 1))
     _, lab = csgraph.connected_components(g, directed=False)
     loose = np.flatnonzero(lab[:n] != lab[ground])
     if loose.size:

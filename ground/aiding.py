@@ -45,6 +45,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 #: an arcsecond-class star tracker at the 1.2 urad IFOV, px (1 arcsec = 4.85 urad)
 STAR_TRACKER_SIGMA_PX = 4.0
@@ -107,7 +108,7 @@ def _check_ifov(ifov_rad: float) -> float:
     return float(ifov_rad)
 
 
-def _check_times(t_s, name: str) -> np.ndarray:
+def _check_times(t_s: ArrayLike, name: str) -> np.ndarray:
     t = np.asarray(t_s, dtype=np.float64)
     if t.ndim != 1 or t.size < 2 or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
         raise ValueError(f"{name} must be a finite, strictly increasing 1-D array of at least "
@@ -115,7 +116,8 @@ def _check_times(t_s, name: str) -> np.ndarray:
     return t
 
 
-def _check_series(t_s, v_px, t_name: str, v_name: str) -> tuple[np.ndarray, np.ndarray]:
+def _check_series(t_s: ArrayLike, v_px: ArrayLike, t_name: str,
+                  v_name: str) -> tuple[np.ndarray, np.ndarray]:
     t = _check_times(t_s, t_name)
     v = np.asarray(v_px, dtype=np.float64)
     if v.shape != (t.size, 2) or not np.all(np.isfinite(v)):
@@ -138,7 +140,7 @@ class GyroReadings:
         object.__setattr__(self, "angle_px", a)
 
 
-def simulate_gyro(gyro: GyroModel, t_s, body_px, ifov_rad: float,
+def simulate_gyro(gyro: GyroModel, t_s: ArrayLike, body_px: ArrayLike, ifov_rad: float,
                   rng: np.random.Generator) -> GyroReadings:
     """Simulate a gyro's readings of a true body motion.
 
@@ -219,7 +221,7 @@ class GyroAiding:
             object.__setattr__(self, name, v)
 
 
-def gyro_aiding(gyro: GyroModel, readings: GyroReadings, t_frame_s, ifov_rad: float, *,
+def gyro_aiding(gyro: GyroModel, readings: GyroReadings, t_frame_s: ArrayLike, ifov_rad: float, *,
                 los_sigma_px: float = 0.0) -> GyroAiding:
     """The gyro's relative-angle measurements between frames, with their covariance.
 
@@ -228,7 +230,10 @@ def gyro_aiding(gyro: GyroModel, readings: GyroReadings, t_frame_s, ifov_rad: fl
     interpolated from (``sigma_w sqrt(u^2 + (1 - u)^2)``, u its fraction of the gyro
     period), the random walk's Brownian-bridge error inside the gyro period
     (``N sqrt(u (1 - u) / rate)``) and ``los_sigma_px`` (the focal plane's own motion the
-    body-mounted gyro cannot see) add in quadrature.
+    body-mounted gyro cannot see) add in quadrature. The model is exact when the gyro
+    reads at least as fast as the frames; a slower gyro interpolates neighbouring frames
+    from the same pair of readings, and the white noise they then share is not carried
+    (the ARW dominates at Astrix-class specifications).
 
     Parameters
     ----------
@@ -300,7 +305,7 @@ class Absolute:
         object.__setattr__(self, "sigma_px", sg)
 
 
-def frame_position(t_s, t_frame_s) -> np.ndarray:
+def frame_position(t_s: ArrayLike, t_frame_s: ArrayLike) -> np.ndarray:
     """Fractional frame positions of times on the frame times (linear between frames).
 
     Parameters
@@ -327,7 +332,8 @@ def frame_position(t_s, t_frame_s) -> np.ndarray:
     return np.interp(t, tf, np.arange(tf.size, dtype=np.float64))
 
 
-def simulate_absolute(t_s, truth_t_s, truth_px, sigma_px, t_frame_s,
+def simulate_absolute(t_s: ArrayLike, truth_t_s: ArrayLike, truth_px: ArrayLike,
+                      sigma_px: ArrayLike, t_frame_s: ArrayLike,
                       rng: np.random.Generator) -> Absolute:
     """Simulated absolute fixes (ground control, a star tracker: ``sigma_px`` =
     :data:`STAR_TRACKER_SIGMA_PX`) of the true motion at times ``t_s`` (m,) s.

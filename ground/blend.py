@@ -40,6 +40,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy import fft
 
 RULES = ("wiener", "switch")
@@ -86,7 +87,7 @@ def band_masks(n: int, dt_s: float, crossover_hz: Sequence[float],
     return np.diff(edges, axis=0)
 
 
-def band_split(x_px, dt_s: float, crossover_hz: Sequence[float],
+def band_split(x_px: ArrayLike, dt_s: float, crossover_hz: Sequence[float],
                width: float = 0.25) -> np.ndarray:
     """A series split into complementary bands that sum back to it.
 
@@ -118,7 +119,7 @@ def band_split(x_px, dt_s: float, crossover_hz: Sequence[float],
     return fft.idct(m[:, :, None] * xc[None], type=2, norm="ortho", axis=1)
 
 
-def band_error_variance(cov_px2, dt_s: float, crossover_hz: Sequence[float],
+def band_error_variance(cov_px2: ArrayLike, dt_s: float, crossover_hz: Sequence[float],
                         width: float = 0.25, *, skip_constant: bool = False) -> np.ndarray:
     """Predicted error variance per band of a series from its error covariance.
 
@@ -186,8 +187,8 @@ class Blend:
         return np.sqrt(self.after_var_px2.sum(axis=0))
 
 
-def blend_correction(estimates_px: Sequence, error_cov_px2: Sequence, dt_s: float,
-                     crossover_hz: Sequence[float], *, width: float = 0.25,
+def blend_correction(estimates_px: Sequence[ArrayLike], error_cov_px2: Sequence[ArrayLike],
+                     dt_s: float, crossover_hz: Sequence[float], *, width: float = 0.25,
                      rule: str = "wiener") -> Blend:
     """The correction to apply per axis and band so the product is never worse than the
     stage alone beyond the predicted error (module docstring).

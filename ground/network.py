@@ -55,9 +55,11 @@ Rauch, Tung & Striebel, AIAA J. 3(8), 1965 and Whittaker, Proc. Edinburgh Math. 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy import sparse
 from scipy.sparse import csgraph
 from scipy.sparse import linalg as spla
@@ -71,7 +73,7 @@ SIGMA_FLOOR_PX = 1e-6
 _BLOCK = 256
 
 
-def _frame_array(v, n_frames: int, name: str) -> np.ndarray:
+def _frame_array(v: ArrayLike, n_frames: int, name: str) -> np.ndarray:
     try:
         a = np.broadcast_to(np.asarray(v, dtype=np.float64), (n_frames, 2))
     except ValueError:
@@ -154,15 +156,19 @@ class Links:
             object.__setattr__(self, name, val)
 
     @classmethod
-    def chain(cls, d_px, sigma_px, *, valid=None, t_s=None, frame_sigma_px=None) -> Links:
+    def chain(cls, d_px: ArrayLike, sigma_px: ArrayLike, *, valid: ArrayLike | None = None,
+              t_s: ArrayLike | None = None,
+              frame_sigma_px: ArrayLike | None = None) -> Links:
         """Today's chain: link k between frames k and k + 1 (``d_px`` (N - 1, 2) px)."""
         n = np.shape(d_px)[0]
         return cls(np.arange(n), np.arange(1, n + 1), d_px, sigma_px, valid, t_s,
                    frame_sigma_px)
 
     @classmethod
-    def baselines(cls, s_px, k_max: int, sigma_px, rng: np.random.Generator | None = None,
-                  *, t_s=None, frame_sigma_px=None) -> Links:
+    def baselines(cls, s_px: ArrayLike, k_max: int,
+                  sigma_px: ArrayLike | Callable[[int], ArrayLike],
+                  rng: np.random.Generator | None = None, *, t_s: ArrayLike | None = None,
+                  frame_sigma_px: ArrayLike | None = None) -> Links:
         """Every link of baseline 1..``k_max`` frames over a motion ``s_px`` (N, 2) px.
 
         ``sigma_px``: a callable of the baseline k returning the link's sigma (px, scalar or
@@ -243,7 +249,7 @@ class NetworkSolution:
         """Predicted error of each sample (N, 2) px: the covariance's diagonal, rooted."""
         return np.sqrt(np.clip(np.diagonal(self.cov_px2, axis1=1, axis2=2).T, 0.0, None))
 
-    def difference_sigma_px(self, i, j) -> np.ndarray:
+    def difference_sigma_px(self, i: ArrayLike, j: ArrayLike) -> np.ndarray:
         """Predicted error of ``s_j - s_i`` per axis, (..., 2) px (i, j frame indices,
         broadcast)."""
         i = np.asarray(i)
@@ -253,7 +259,7 @@ class NetworkSolution:
         return np.sqrt(np.clip(np.moveaxis(v, 0, -1), 0.0, None))
 
 
-    def at(self, t_s) -> tuple[np.ndarray, np.ndarray]:
+    def at(self, t_s: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """The series and its predicted error at any times, e.g. each line's integration
         mid-time.
 
@@ -635,7 +641,8 @@ def _basis(t: np.ndarray, terms: str) -> np.ndarray:
     return q
 
 
-def geometry_rms(error_px, t_s=None, cov_px2=None) -> dict[str, np.ndarray]:
+def geometry_rms(error_px: ArrayLike, t_s: ArrayLike | None = None,
+                 cov_px2: ArrayLike | None = None) -> dict[str, np.ndarray]:
     """Geometry per axis as mission engineers state it: the RMS of an error series after
     removing a constant, and after removing an affine (bias + linear trend in time: the best
     any ground control could do), measured and predicted.

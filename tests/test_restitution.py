@@ -221,14 +221,18 @@ def test_the_smoother_removes_frame_noise_with_a_prior_estimated_from_the_record
     np.testing.assert_allclose(sm.sigma_px[0], 0.0, atol=1e-12)  # the gauge: s_0 = 0
 
 
-def test_smooth_network_estimates_its_own_prior():
+@pytest.mark.parametrize("order", [1, 2])
+def test_smooth_network_estimates_its_own_prior(order):
     rng = np.random.default_rng([32, 5])
     n = 120
     t, s = wobble(n)
     links = Links.baselines(s, 2, 0.004, rng, t_s=t, frame_sigma_px=0.02)
-    sm = smooth_network(links, n)
-    assert sm.prior is not None and sm.prior.order == 2
-    assert sm.prior.q_px2 == estimate_prior(solve_network(links, n)).q_px2
+    raw = solve_network(links, n)
+    sm = smooth_network(links, n, order=order)
+    assert sm.prior is not None and sm.prior.order == order
+    assert sm.prior.q_px2 == estimate_prior(raw, order).q_px2
+    rms = [geometry_rms(x.s_px - s, t)["constant"] for x in (raw, sm)]
+    assert np.all(rms[1] < rms[0])
     with pytest.raises(ValueError, match="order"):
         Prior(3, (1.0, 1.0))
 
@@ -249,6 +253,10 @@ def test_gyro_units_and_its_simulated_random_walk():
         simulate_gyro(g, t, np.zeros((3, 2)), IFOV_RAD, 7)
     with pytest.raises(ValueError, match="ifov_rad"):
         g.arw_px_rts(0.0)
+    with pytest.raises(ValueError, match="arw_deg_rthr"):
+        GyroModel(-1.0, 0.0, 100.0)
+    with pytest.raises(ValueError, match="sigma_px"):
+        Absolute([1.0], [[0.0, 0.0]], 0.0)
 
 
 def test_a_noiseless_gyro_makes_the_record_exact_at_low_frequency():

@@ -40,7 +40,7 @@ maximum marginal likelihood of the unsmoothed solution's p-th differences ``y = 
 the smoothed series keeps an exact posterior covariance (exact when the prior holds).
 
 Covariance: the full (N, N) covariance per axis is returned, dense: 8 N^2 bytes per axis
-(14 MB at N = 1,000 frames, 72 MB at 3,000), computed by solving the factorised normal
+(8 MB at N = 1,000 frames, 72 MB at 3,000), computed by solving the factorised normal
 matrix against the s columns in blocks of 256. Differences and projections
 (:meth:`NetworkSolution.difference_sigma_px`, :func:`geometry_rms`) read it.
 

@@ -5,6 +5,14 @@ ground/ owns what happens to the main imager's strip (or frame) once it is on th
 * ``ground.record``: the per-line image-motion model from the motion record the loop received
   (interpolated in time, averaged over each line's integration window), and the same from a
   perfect record (the truth) to separate the record's own error from interpolation;
+* ``ground.network``: the motion record solved as a network of pair measurements (every
+  link of every baseline) by sparse weighted least squares with its covariance, per-frame
+  noise shared by a frame's links, a two-sided smoother whose prior is estimated from the
+  record itself, and the geometry metrics per axis after a constant and after an affine;
+* ``ground.aiding``: a gyro's error model, its simulated readings and its relative angles
+  between frames, and absolute fixes (ground control, a star tracker), fused in that solve;
+* ``ground.blend``: stage + ground never worse than the stage alone, a per-axis, per-band
+  (crossover) blend of the ground's estimates of the stage's residual;
 * ``ground.rectify``: geometric rectification, the strip resampled onto the nominal
   (motion-free) line/column grid from per-line (or field-dependent) offsets, and the geometric
   error of an estimated offset against the true one;

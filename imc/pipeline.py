@@ -144,7 +144,7 @@ def _run(sc: Scenario, out: Path, save_frames: bool, fresh: bool, progress: Prog
     drawing = []
     rendered = None
     if sc.product.enabled:
-        rendered = _product(m, res, out, fresh, metrics, files)
+        rendered = _product(m, res, truth, frames, out, fresh, metrics, files)
         if report_figures:
             drawing.append(jobs.submit(write_quicklook, out))
     if sc.metrics.blur_images and not m.imager.scanning:  # a TDI product is its own picture
@@ -173,16 +173,30 @@ def _run(sc: Scenario, out: Path, save_frames: bool, fresh: bool, progress: Prog
     return metrics, info
 
 
-def _product(m: Models, res, out: Path, fresh: bool, metrics: dict, files: list):
-    """The main imager's product (:func:`imc.wiring.product.product_study`) into
-    ``product/`` and metrics.json's ``product``; returns its renders (the picture reuses
-    them)."""
+def _product(m: Models, res, truth, frames, out: Path, fresh: bool, metrics: dict,
+             files: list):
+    """The main imager's product (:func:`imc.wiring.product.product_study`) from the ground's
+    record (:mod:`imc.wiring.links`, :mod:`imc.wiring.restitution`) into ``product/`` and
+    metrics.json's ``product``; returns its renders (the picture reuses them)."""
+    from imc.io import write_npz
     from imc.outputs.product_files import product_metrics, write_product
-    from imc.wiring.product import product_study
+    from imc.wiring.links import measure_links
+    from imc.wiring.product import plan_product, product_study
+    from imc.wiring.restitution import restitute
 
-    ds, rendered = product_study(m, res, out, fresh)
+    links = measure_links(m, res.record, frames, truth.stage_mean_px,
+                          m.scenario.product.restitution.baselines)
+    (out / "product").mkdir(parents=True, exist_ok=True)
+    write_npz(out / "product" / "links.npz", **links.arrays())
+    plan = plan_product(m)
+    rest = restitute(m, links, np.array([plan.line_t_s[0], plan.line_t_s[-1]
+                                         + plan.integration_s]))
+    ds, rendered = product_study(m, res, out, fresh, rest)
+    ds.attrs["restitution"] = {"baselines": rest.baselines, "links": rest.links_used,
+                               "aiding": list(rest.aiding),
+                               "efficiency": [float(x) for x in links.efficiency]}
     written = write_product(ds, out / "product")
-    metrics["product"] = product_metrics(ds, written)
+    metrics["product"] = product_metrics(ds, written + [out / "product" / "links.npz"])
     files.extend(written)
     return rendered
 

@@ -775,6 +775,40 @@ class PlantConfig(_Model):
                                    "predicted error on the scene's texture)")
 
 
+class GyroConfig(_Model):
+    """A gyro on the body fused with the record on the ground (product.gyro): it sees the
+    attitude, not the focal plane's own effects. Defaults: a Pleiades-class fibre-optic gyro
+    (Astrix 200)."""
+
+    arw_deg_rt_h: float = Field(0.0002, gt=0.0, description="angle random walk, deg/sqrt(h)")
+    bias_instability_deg_h: float = Field(0.002, ge=0.0, description="bias instability, deg/h")
+    rate_hz: float = Field(200.0, gt=0.0, le=100000.0, description="sampling rate, Hz (at "
+                           "least the tracker's frame rate)")
+    white_noise_urad: float = Field(0.0, ge=0.0, description="white angle noise per sample, "
+                                    "urad")
+
+
+class GroundControlConfig(_Model):
+    """Ground control points on the strip (product.ground_control): the line of sight's
+    absolute position at ``points`` instants spread evenly over the product, each to
+    ``sigma_px``, fused with the record on the ground."""
+
+    points: int = Field(4, ge=1, le=10000, description="control points along the strip")
+    sigma_px: float = Field(0.02, gt=0.0, description="each point's accuracy, px (1 sigma)")
+
+
+class RestitutionConfig(_Model):
+    """How the ground turns the record into the best motion it can know (product.restitution):
+    a network of every link (multi-baseline), solved by weighted least squares, then a
+    two-sided smoother whose prior is estimated from the record itself."""
+
+    baselines: int | None = Field(None, ge=1, le=32, description="baselines K a chained "
+                                  "tracker measures (frame k against k-1 .. k-K; default: "
+                                  "what the sensor's overlap allows; 1: today's chain)")
+    smoother: bool = Field(True, description="smooth the network's solution (a cubic "
+                           "smoothing-spline prior of intensity estimated from the record)")
+
+
 class ProductConfig(_Model):
     """The main imager's image product: rendered as the camera forms it (a TDI strip line by
     line, or a frame window), static / open loop / closed loop, corrected on the ground from
@@ -796,6 +830,11 @@ class ProductConfig(_Model):
                            "PSF is estimated and deconvolved per run of lines)")
     restore: Literal["wiener", "richardson_lucy"] = Field(
         "wiener", description="deconvolution (scikit-image): wiener or richardson_lucy")
+    restitution: RestitutionConfig = Field(default_factory=RestitutionConfig)
+    gyro: GyroConfig | None = Field(None, description="a body gyro fused with the record "
+                                    "(null: none)")
+    ground_control: GroundControlConfig | None = Field(
+        None, description="ground control points fused with the record (null: none)")
 
 
 class MetricsConfig(_Model):

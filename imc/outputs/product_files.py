@@ -33,6 +33,12 @@ def _geometry(ds: xr.Dataset, name: str) -> dict:
                            "max_abs_px": _value(s.geometry_max_abs_px),
                            "n": int(s.geometry_n)}
     out["ground_control_px"] = _value(g.ground_control_px)
+    out["affine"] = {"rms_px": _value(g.geometry_affine_rms_px),
+                     "perfect_record_rms_px": _value(g.geometry_affine_perfect_rms_px)}
+    if name in ds.attrs.get("blend", {}):
+        out["blend"] = ds.attrs["blend"][name]
+    if np.all(np.isfinite(g.control_points_rms_px.values)):
+        out["control_points"] = {"rms_px": _value(g.control_points_rms_px)}
     return out
 
 
@@ -61,6 +67,19 @@ def restoration_gain(quality: dict) -> dict:
     return out
 
 
+def _record(ds: xr.Dataset) -> dict:
+    """The record's own error and, when the ground solved it, its predicted error and how."""
+    a = ds.attrs
+    out = {"rms_px": _value(ds.record_rms_px), "samples": int(a["record_samples"]),
+           "rate_hz": float(a["record_rate_hz"])}
+    if "predicted_constant_px" in ds:
+        out["predicted"] = {"constant_px": _value(ds.predicted_constant_px),
+                            "affine_px": _value(ds.predicted_affine_px)}
+    if "restitution" in a:
+        out["restitution"] = a["restitution"]
+    return out
+
+
 def product_metrics(ds: xr.Dataset, files: list[Path] | None = None) -> dict:
     """metrics.json's ``product`` section from the labelled result (the keys of earlier
     imcsim runs kept: expectations, sweeps and users' CI read them)."""
@@ -75,8 +94,7 @@ def product_metrics(ds: xr.Dataset, files: list[Path] | None = None) -> dict:
         "hit_fraction": float(a["hit_fraction"]), "scene_build_s": float(a["scene_build_s"]),
         "render_s": render_s, "rays_per_s": float(a["rays"] / max(render_s, 1e-9)),
         "ground_s": float(a["ground_s"]), "quality_s": float(a.get("quality_s", 0.0)),
-        "record": {"rms_px": _value(ds.record_rms_px), "samples": int(a["record_samples"]),
-                   "rate_hz": float(a["record_rate_hz"])},
+        "record": _record(ds),
         "geometry": {str(n): _geometry(ds, str(n)) for n in ds.moving.values},
         "quality": quality,
         "restoration": restoration_gain(quality),
@@ -110,6 +128,9 @@ def write_product(ds: xr.Dataset, folder: Path) -> list[Path]:
         for n in moving:
             off = ds.offset_px.sel(source=src, moving=n).values
             cols += [off[:, 0], off[:, 1]]
+    if "predicted_line_px" in ds:  # the record's predicted error per line (absolute)
+        header += ["predicted_row", "predicted_col"]
+        cols += [ds.predicted_line_px.values[:, 0], ds.predicted_line_px.values[:, 1]]
     write_csv(folder / "lines.csv", header, np.column_stack(cols).tolist())
     files.append(folder / "lines.csv")
     arrays = {f"scene/{n}": ds.image.sel(version=n).values for n in ds.version.values}

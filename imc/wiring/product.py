@@ -435,9 +435,14 @@ def record_error(record, perfect) -> dict:
 # ------------------------------------------------------------------------------ the ground
 
 
-def _geometry(est: np.ndarray, perf: np.ndarray, true: np.ndarray) -> tuple[dict, dict]:
+def _geometry(est: np.ndarray, perf: np.ndarray, true: np.ndarray, t_s: np.ndarray,
+              absolute: bool) -> tuple[dict, dict]:
     """(the offsets from the record and the perfect record with ground control's constant
-    set, the geometry figures before and after correction) of one version."""
+    set, the geometry figures) of one version: before and after correction about a constant
+    (``before``, ``after``, ``after_perfect_record``), after an affine ground control (bias and
+    linear trend in time per axis: ``affine``), and with control points fused in the record
+    the absolute error, nothing removed (``control_points``)."""
+    from ground.network import geometry_rms
     from ground.rectify import geometric_error
 
     est_c, perf_c = est - (est - true).mean(axis=0), perf - (perf - true).mean(axis=0)
@@ -446,8 +451,13 @@ def _geometry(est: np.ndarray, perf: np.ndarray, true: np.ndarray) -> tuple[dict
         "after": geometric_error(est_c, true).to_dict(),
         "after_perfect_record": geometric_error(perf_c, true).to_dict(),
         "ground_control_px": [float(x) for x in (est - true).mean(axis=0)],
+        "affine": {"rms_px": [float(x) for x in geometry_rms(est - true, t_s)["affine"]],
+                   "perfect_record_rms_px": [float(x) for x in
+                                             geometry_rms(perf - true, t_s)["affine"]]},
     }
-    return {"record": est_c, "perfect": perf_c}, figures
+    if absolute:
+        figures["control_points"] = {"rms_px": geometric_error(est, true).to_dict()["rms_px"]}
+    return {"record": est_c if not absolute else est, "perfect": perf_c}, figures
 
 
 def correct_image(image: np.ndarray, offsets: np.ndarray, kernels: list, runs: np.ndarray,
@@ -491,20 +501,33 @@ def _correct_version(m: Models, rendered: Rendered, images: dict, name: str, off
 
 
 def ground_versions(m: Models, rendered: Rendered, exposed: Exposed, versions: Versions,
-                    record, perfect, true_stage) -> Ground:
+                    record, perfect, true_stage, restitution=None) -> Ground:
     """Step 4: the lines' offsets from the record (and the perfect record), the geometry
-    before and after correction, the corrected and restored products."""
+    before and after correction, the corrected and restored products; ``restitution``
+    (:class:`imc.wiring.restitution.Restitution`, the record's source) adds the record's
+    predicted error."""
     t0 = time.perf_counter()
     plan = rendered.plans["scene"]
+    t_mid = plan.line_t_s + 0.5 * plan.integration_s
+    absolute = restitution is not None and restitution.absolute
     nsr = 1.0 / max(m.sensor.snr(exposure_s=plan.integration_s), 1.0)
     offsets = {"true": {}, "record": {}, "perfect": {}}
     geometry, products, on_grid, valid, shifts = {}, dict(exposed.images), {}, {}, {}
     for name in versions.names[1:]:
         stage = versions.stage[name]
         true = rendered.truth_offset_px[name]
-        est = line_offsets(plan, record, stage)
+        if stage is not None and restitution is not None:  # never worse than the stage alone
+            from ground.record import line_motion
+
+            applied, blend = restitution.stage_correction(stage)
+            est = line_motion(applied, plan.line_t_s, plan.integration_s,
+                              RECORD_METHOD) * plan.sign
+        else:
+            est, blend = line_offsets(plan, record, stage), None
         perf = line_offsets(plan, perfect, true_stage if stage is not None else None)
-        (fixed, geometry[name]) = _geometry(est, perf, true)
+        (fixed, geometry[name]) = _geometry(est, perf, true, t_mid, absolute)
+        if blend is not None:
+            geometry[name]["blend"] = blend
         offsets["true"][name] = true
         offsets["record"][name], offsets["perfect"][name] = fixed["record"], fixed["perfect"]
         prod, grid, ok, shifts[name] = _correct_version(m, rendered, exposed.images, name,
@@ -512,8 +535,12 @@ def ground_versions(m: Models, rendered: Rendered, exposed: Exposed, versions: V
         products.update(prod)
         on_grid.update(grid)
         valid.update(ok)
-    return Ground(offsets, geometry, products, on_grid, valid, shifts,
-                  record_error(record, perfect), time.perf_counter() - t0)
+    err = record_error(record, perfect)
+    if restitution is not None:
+        err["predicted"] = restitution.predicted_geometry(t_mid)
+        offsets["predicted"] = restitution.predicted_px(t_mid)
+    return Ground(offsets, geometry, products, on_grid, valid, shifts, err,
+                  time.perf_counter() - t0)
 
 
 # ------------------------------------------------------------------------------ quality
@@ -613,7 +640,20 @@ def product_dataset(rendered: Rendered, ground: Ground, quality: dict, samples: 
             [[ground.geometry[n][st]["n"] for st in GEOMETRY_STAGES] for n in moving])
             .reshape(len(moving), 3)),
         "record_rms_px": (("axis",), np.array(ground.record_error["rms_px"])),
+        "geometry_affine_rms_px": (("moving", "axis"), np.array(
+            [ground.geometry[n]["affine"]["rms_px"] for n in moving]).reshape(-1, 2)),
+        "geometry_affine_perfect_rms_px": (("moving", "axis"), np.array(
+            [ground.geometry[n]["affine"]["perfect_record_rms_px"] for n in moving])
+            .reshape(-1, 2)),
+        "control_points_rms_px": (("moving", "axis"), np.array(
+            [ground.geometry[n].get("control_points", {}).get("rms_px", [np.nan] * 2)
+             for n in moving], dtype=np.float64).reshape(-1, 2)),
     }
+    pred = ground.record_error.get("predicted")
+    if pred is not None:
+        data["predicted_constant_px"] = (("axis",), np.array(pred["constant_px"]))
+        data["predicted_affine_px"] = (("axis",), np.array(pred["affine_px"]))
+        data["predicted_line_px"] = (("line", "axis"), ground.offsets["predicted"])
     for fig in GEOMETRY_FIGURES:
         data[f"geometry_{fig}"] = (("moving", "stage", "axis"), np.array(
             [[ground.geometry[n][st][fig] for st in GEOMETRY_STAGES] for n in moving])
@@ -626,7 +666,8 @@ def product_dataset(rendered: Rendered, ground: Ground, quality: dict, samples: 
     coords = {"version": names, "moving": moving, "source": ["true", "record", "perfect"],
               "stage": list(GEOMETRY_STAGES), "axis": axis,
               "direction": ["along", "across"], "line_t_s": ("line", plan.line_t_s)}
-    attrs = {"kind": plan.kind, "lines": plan.n_lines, "cols": int(len(plan.cols)),
+    blends = {n: ground.geometry[n]["blend"] for n in moving if "blend" in ground.geometry[n]}
+    attrs = {"blend": blends, "kind": plan.kind, "lines": plan.n_lines, "cols": int(len(plan.cols)),
              "samples": samples, "start_s": plan.t0_s, "integration_s": plan.integration_s,
              "line_rate_hz": plan.line_rate_hz, "gsd_m": quality["static"]["gsd_m"],
              "rays": int(rendered.rays), "hit_fraction": float(rendered.hits
@@ -664,16 +705,17 @@ def _chunk_store(out: Path, digest: str, fresh: bool) -> Path:
     return chunks
 
 
-def run_study(m: Models, res, plan: ProductPlan, samples: int, store: Path
-              ) -> tuple[xr.Dataset, Rendered]:
-    """Steps 2-5 on one plan: (the labelled result, the renders)."""
+def run_study(m: Models, res, plan: ProductPlan, samples: int, store: Path,
+              restitution=None) -> tuple[xr.Dataset, Rendered]:
+    """Steps 2-5 on one plan: (the labelled result, the renders); the record is
+    ``restitution``'s (:mod:`imc.wiring.restitution`) when given, else the loop's own."""
     stage = res.trajectory if m.scenario.compensation.enabled else None
     versions = Versions.of_run(stage)
     rendered = render_versions(m, plan, versions, samples, store)
     exposed = expose_versions(m, plan, rendered)
-    record = record_jitter(m, res)
+    record = restitution.record if restitution is not None else record_jitter(m, res)
     ground = ground_versions(m, rendered, exposed, versions, record,
-                             perfect_jitter(m, record), stage)
+                             perfect_jitter(m, record), stage, restitution)
     t0 = time.perf_counter()
     quality = measure_quality(m, ground)
     ds = product_dataset(rendered, ground, quality, samples)
@@ -682,7 +724,7 @@ def run_study(m: Models, res, plan: ProductPlan, samples: int, store: Path
     return ds, rendered
 
 
-def product_study(m: Models, res, out: Path, fresh: bool = False
+def product_study(m: Models, res, out: Path, fresh: bool = False, restitution=None
                   ) -> tuple[xr.Dataset, Rendered]:
     """Render, process and judge the run's main-imager product (the scenario's ``product``
     section); a killed run resumes from the chunks written (``fresh``: renders anew).
@@ -690,7 +732,7 @@ def product_study(m: Models, res, out: Path, fresh: bool = False
     :func:`imc.outputs.product_files.write_product` writes them."""
     plan = plan_product(m)
     return run_study(m, res, plan, m.scenario.product.samples,
-                     _chunk_store(out, m.scenario.digest(), fresh))
+                     _chunk_store(out, m.scenario.digest(), fresh), restitution)
 
 
 # ------------------------------------------------------------------------------ the picture

@@ -27,6 +27,9 @@ STREAM_IDS = {
     "flight_render": 12,  # flight test: the second tracker sensor's render seed, per frame
     "texture_map": 13,  # texture-robustness map: shifts, blur and noise, per block
     "product": 14,  # the main imager's product: detector noise, per scene (scene, target)
+    "links": 15,  # the ground's extra baselines (optical correlator noise), per (frame, j)
+    "gyro": 16,  # the ground's gyro readings
+    "ground_control": 17,  # the ground control points' errors
 }
 
 

@@ -1,0 +1,182 @@
+"""The motion record as the ground receives it: every link the tracker measured, with its
+predicted error and delivery time, and the extra baselines a chained (scanning) tracker can
+measure while a block's content is still on the sensor.
+
+A scanning tracker re-references every frame: the loop measures frame k against frame k - 1
+(its causal short baseline, kept as is: the loop's figures do not change). The ground has
+the whole record, so the device also correlates frame k against frames k - 2 .. k - K where
+the content is still on the sensor (:func:`overlap_baselines`): the same block grid, each
+block cut at half the predicted motion in both frames, as the loop's chain cuts it. Each link
+is the blocks' inverse-variance mean of the measured shift less the orbit / attitude / DEM
+prediction (and the stage's known change): the jitter's increment ``s(t_b) - s(t_a)`` at the
+tracker's blocks, in tracker pixels (the main imager shares the focal plane and its scale).
+
+Its predicted error is the blocks' Cramer-Rao bound scaled by the record's own consistency:
+the blocks of one link measure the same increment, so their scatter about the link's mean
+(a chi-square with B - 1 degrees of freedom per axis) says how far the bound is from the
+errors the correlator really makes; never the truth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from correlator.tracker import BlockTracker
+from ground.network import Links
+from imc.wiring import streams
+from imc.wiring.build import Models, predicted_px
+
+#: pixels kept between a block and the sensor's edge when deciding the overlap's baselines
+OVERLAP_MARGIN_PX = 8
+
+
+@dataclass(frozen=True, eq=False)  # holds arrays
+class LinkTable:
+    """Every link of a run: reference ``a`` and current ``b`` frames (n,), the jitter's
+    increment ``d_px`` (n, 2) px, its predicted error ``sigma_px`` (n, 2) px (CRLB scaled by
+    ``efficiency``), ``valid`` (n,), the delivery time ``deliver_s`` (n,) s (NaN: never),
+    the ``baseline`` b - a (n,), the blocks that made each link ``blocks`` (n,), ``loop`` (n,)
+    True for the loop's own links, and the per-axis ``efficiency`` (2,) the record's
+    consistency gave the bound."""
+
+    a: np.ndarray
+    b: np.ndarray
+    d_px: np.ndarray
+    sigma_px: np.ndarray
+    valid: np.ndarray
+    deliver_s: np.ndarray
+    baseline: np.ndarray
+    blocks: np.ndarray
+    loop: np.ndarray
+    efficiency: np.ndarray
+
+    def network(self, t_s: np.ndarray, k_max: int | None = None) -> Links:
+        """The loop's links and the extra ones of baselines up to ``k_max`` (None: all) as a
+        :class:`ground.network.Links` on frame times ``t_s``, s."""
+        keep = np.ones(len(self.a), bool) if k_max is None else (self.loop
+                                                                 | (self.baseline <= k_max))
+        sig = np.where(self.valid[keep, None], self.sigma_px[keep], 1.0)
+        return Links(self.a[keep], self.b[keep], np.nan_to_num(self.d_px[keep]), sig,
+                     self.valid[keep], t_s)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The table as named arrays (``links.npz``)."""
+        return {k: getattr(self, k) for k in ("a", "b", "d_px", "sigma_px", "valid",
+                                               "deliver_s", "baseline", "blocks", "loop",
+                                               "efficiency")}
+
+
+def overlap_baselines(m: Models) -> int:
+    """The most baselines K a chained tracker's block keeps whole on the sensor: frames over
+    which the predicted motion at the sensor's centre stays within rows (cols) less a block
+    and a margin (:data:`OVERLAP_MARGIN_PX`); 1 for a staring tracker (no chain)."""
+    if not m.chain or len(m.frame_t_s) < 3:
+        return 1
+    fp = m.camera.focal_plane
+    b = m.scenario.correlator.block_px
+    mid = len(m.frame_t_s) // 2
+    step = np.abs(predicted_px(m, np.array([fp.center_px]), mid - 1, mid, np.zeros(2),
+                               np.zeros(2))[0])
+    room = np.array([fp.rows, fp.cols]) - b - OVERLAP_MARGIN_PX
+    per = np.where(step > 1e-9, room / np.maximum(step, 1e-9), np.inf)
+    return int(max(1, min(np.floor(per.min()), len(m.frame_t_s) - 1)))
+
+
+def _combine(d: np.ndarray, sigma: np.ndarray, valid: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Blocks (n, B, 2) -> links: inverse-variance mean, its sigma (CRLB), the blocks used
+    and the chi-square of the blocks about the mean per axis (n, 2)."""
+    w = np.where(valid[..., None], 1.0 / np.maximum(sigma, 1e-12) ** 2, 0.0)
+    sw = w.sum(axis=1)
+    mean = np.where(sw > 0, (w * np.nan_to_num(d)).sum(axis=1) / np.maximum(sw, 1e-300),
+                    np.nan)
+    chi2 = (w * (np.nan_to_num(d) - np.nan_to_num(mean)[:, None]) ** 2).sum(axis=1)
+    return mean, 1.0 / np.sqrt(np.maximum(sw, 1e-300)), valid.sum(axis=1), chi2
+
+
+def _loop_blocks(m: Models, rec, stage_mean: np.ndarray):
+    """The loop's own links (frame k against its reference) per block: (a, b, d (n, B, 2),
+    sigma, valid)."""
+    ks = np.flatnonzero(rec.measured.any(axis=1) & (np.arange(len(m.frame_t_s)) > 0))
+    a = rec.ref_frame[ks, 0].astype(int)
+    d = np.full((len(ks), rec.shift_px.shape[1], 2), np.nan)
+    for i, (r, k) in enumerate(zip(a, ks, strict=True)):
+        d[i] = rec.shift_px[k] - predicted_px(m, rec.centers_px[k], int(r), int(k),
+                                              stage_mean[r], stage_mean[k])
+    valid = rec.valid[ks] & rec.measured[ks] & np.all(np.isfinite(d), axis=-1)
+    keep = a < ks
+    return a[keep], ks[keep], d[keep], rec.sigma_px[ks][keep], valid[keep]
+
+
+def _extra_blocks(m: Models, frames: np.ndarray, stage_mean: np.ndarray, k_max: int,
+                  first: int = 2, warp: bool = True):
+    """Links of baselines ``first``..k_max per block, measured on the stored frames with the
+    loop's chain's block cut (at half the predicted motion); ``warp``: the current block
+    resampled (cubic spline) at the predicted motion, so the correlator measures only the
+    jitter's increment about zero, where its sub-pixel estimate has no bias (a chain's links
+    all share one fractional predicted shift: the estimator's bias there adds up to a
+    drift)."""
+    b = m.scenario.correlator.block_px
+    fp = m.camera.focal_plane
+    lim = np.array([fp.rows - b, fp.cols - b])
+    grid = BlockTracker.centers_from(m.corners, b)
+    out_a, out_b, out_d, out_s, out_v = [], [], [], [], []
+    for k in range(first, len(m.frame_t_s)):
+        for j in range(first, min(k_max, k) + 1):
+            a = k - j
+            half = np.rint(predicted_px(m, grid, a, k, stage_mean[a], stage_mean[k]) / 2.0)
+            corners = np.clip(m.corners - half.astype(int), 0, lim)
+            centers = BlockTracker.centers_from(corners, b)
+            pred = predicted_px(m, centers, a, k, stage_mean[a], stage_mean[k])
+            tracker = BlockTracker(frames[a], corners, b, m.correlator)
+            flow = np.broadcast_to(pred[:, None, None, :], (len(pred), b, b, 2)) if warp \
+                else None
+            res = tracker.update(frames[k], pred, streams.rng(m.scenario.seed, "links", k, j),
+                                 flow=flow)
+            out_a.append(a)
+            out_b.append(k)
+            out_d.append(res.shift - pred)
+            out_s.append(np.where(res.valid[:, None], res.crlb, np.inf))
+            out_v.append(res.valid & np.all(np.isfinite(res.shift), axis=1))
+    if not out_a:
+        nb = len(m.corners)
+        return (np.zeros(0, int), np.zeros(0, int), np.zeros((0, nb, 2)),
+                np.zeros((0, nb, 2)), np.zeros((0, nb), bool))
+    return (np.array(out_a), np.array(out_b), np.stack(out_d), np.stack(out_s),
+            np.stack(out_v))
+
+
+def measure_links(m: Models, rec, frames: np.ndarray | None, stage_mean: np.ndarray,
+                  k_max: int | None = None) -> LinkTable:
+    """Every link of a run: the loop's own and, for a chained tracker with its frames, the
+    baselines 2..K (``k_max``; None: :func:`overlap_baselines`).
+
+    Parameters
+    ----------
+    m : the run's models.
+    rec : the loop's record (:class:`compensation.loop.LoopRecord`).
+    frames : (T, rows, cols) the tracker's frames (None: the loop's links only).
+    stage_mean : (T, 2) the stage's mean over each tracker exposure, px.
+    k_max : the most baselines.
+
+    Returns
+    -------
+    LinkTable
+    """
+    k_max = overlap_baselines(m) if k_max is None else int(k_max)
+    parts = [_loop_blocks(m, rec, stage_mean)]
+    if frames is not None and m.chain and k_max >= 2:
+        parts.append(_extra_blocks(m, frames, stage_mean, k_max))
+    loop = np.concatenate([np.full(len(p[0]), i == 0) for i, p in enumerate(parts)])
+    a, b, d, s, v = (np.concatenate(x) for x in zip(*parts, strict=True))
+    mean, sig, nblk, chi2 = _combine(d, s, v)
+    ok = nblk >= 2
+    dof = np.maximum(nblk - 1, 0)
+    # the record's consistency: the blocks' scatter against their bounds, pooled (>= 1)
+    eff = np.sqrt(np.maximum(chi2[ok].sum(axis=0) / max(dof[ok].sum(), 1), 1.0)) if ok.any() \
+        else np.ones(2)
+    deliver = np.asarray(rec.arrive_s, dtype=np.float64)[b]
+    valid = (nblk >= 1) & np.all(np.isfinite(mean), axis=1)
+    return LinkTable(a, b, mean, sig * eff, valid, deliver, b - a, nblk, loop, eff)

@@ -5,6 +5,15 @@ content motion of each block is a function of time (from the camera model, or a 
 disturbance); a frame's measurement is its exposure-mean motion minus its reference's, minus
 the stage's exposure-mean change between the two, plus Gaussian noise of ``sigma_px``
 (drawn from ``numpy.random.default_rng([*seed, k])`` for frame k, so a resumed run is exact).
+
+In a scanning view (``chain``) it re-references as the image plants do: every block is
+``leaving``, the loop's estimator re-references each frame and the record is a chain of
+frame-to-frame links. Links that share a frame then share that frame's noise: a link's noise
+is ``sigma (sqrt(1 - 2 rho) e + sqrt(rho) (nu_b - nu_a))`` with ``nu_k`` frame k's own draw
+(``default_rng([*seed, k, 1])``) and ``rho`` :data:`SHARED_FRACTION`, so its variance stays
+``sigma^2`` and consecutive links correlate by ``-rho``. :meth:`AnalyticPlant.pair_links`
+gives the links of every baseline 1..K the ground's network uses (the loop's own noise for
+baseline 1).
 """
 
 from __future__ import annotations
@@ -16,6 +25,11 @@ import numpy as np
 from compensation.blocks import BlockMeasurements
 
 MotionFn = Callable[[np.ndarray], np.ndarray]
+
+#: the share of a chained link's noise variance that each of its two frames carries (the
+#: lag-1 correlation of consecutive links, negated): measured -0.08 / -0.12 (row / col) on
+#: the rendered no_stage.yaml tracker's 331 links
+SHARED_FRACTION = 0.1
 
 
 class AnalyticPlant:
@@ -36,7 +50,12 @@ class AnalyticPlant:
                  frame_t_s: np.ndarray, exposure_s: float, seed: tuple[int, ...] = (0,),
                  samples: int = 8, deform_px_per_s: np.ndarray | None = None,
                  noise_scale: float = 1.0, nominal_px: MotionFn | None = None,
-                 field_nominal_px: MotionFn | None = None):
+                 field_nominal_px: MotionFn | None = None, chain: bool = False,
+                 shared_fraction: float = SHARED_FRACTION):
+        if not 0.0 <= shared_fraction <= 0.5:
+            raise ValueError(f"shared_fraction must be in [0, 0.5], got {shared_fraction}")
+        self.chain = bool(chain)
+        self.shared_fraction = float(shared_fraction)
         self.centers_px = np.atleast_2d(np.asarray(centers_px, dtype=np.float64))
         self.n_blocks = len(self.centers_px)
         self.sigma_px = np.broadcast_to(np.asarray(sigma_px, dtype=np.float64),
@@ -68,8 +87,7 @@ class AnalyticPlant:
         r = self.ref
         truth = (self.motion_mean[k] - self.motion_mean[r]
                  - (self.stage_mean[k] - self.stage_mean[r])[None, :])
-        noise = np.random.default_rng([*self.seed, k]).standard_normal((self.n_blocks, 2))
-        shift = truth + noise * (self.sigma_px * self.noise_scale)
+        shift = truth + self._noise(k, r) * (self.sigma_px * self.noise_scale)
         on = np.asarray(blocks, dtype=bool)
         dt = float(self.frame_t_s[k] - self.frame_t_s[r])
         return BlockMeasurements(
@@ -78,9 +96,41 @@ class AnalyticPlant:
             shift_px=np.where(on[:, None], shift, np.nan),
             sigma_px=np.where(on[:, None], np.maximum(self.sigma_px, 1e-12), np.inf),
             valid=on.copy(), peak=np.where(on, np.inf, 0.0),
-            deform_px=self.deform_px_per_s * dt, leaving=np.zeros(self.n_blocks, bool),
+            deform_px=self.deform_px_per_s * dt, leaving=np.full(self.n_blocks, self.chain),
             predicted_px=self.nominal[k] - self.nominal[r],
             field_predicted_px=self.field_nominal[k] - self.field_nominal[r])
+
+    def _frame_draw(self, k: int) -> np.ndarray:
+        """nu_k (B, 2): frame k's own noise draw (shared by its links in a chain)."""
+        return np.random.default_rng([*self.seed, k, 1]).standard_normal((self.n_blocks, 2))
+
+    def _noise(self, k: int, r: int, j: int | None = None) -> np.ndarray:
+        """A link's unit noise (B, 2) from frame r to k: the loop's own (``j`` None) or the
+        ground's extra baseline j's independent draw, with the shared frame terms in a
+        chain."""
+        key = [*self.seed, k] if j is None else [*self.seed, k, j, 2]
+        e = np.random.default_rng(key).standard_normal((self.n_blocks, 2))
+        if not self.chain or r == k:
+            return e
+        rho = self.shared_fraction
+        return np.sqrt(1.0 - 2.0 * rho) * e + np.sqrt(rho) * (self._frame_draw(k)
+                                                              - self._frame_draw(r))
+
+    def pair_links(self, k_max: int) -> tuple[np.ndarray, ...]:
+        """Every link of baselines 1..k_max the ground's network uses, per block: (a (n,),
+        b (n,), the jitter's increment (n, B, 2) px (the content's motion less the nominal,
+        noise included), its sigma (n, B, 2) px, valid (n, B)); baseline 1 with the loop's
+        own noise (the loop re-references every frame in a chain)."""
+        jit = self.motion_mean - self.nominal
+        n = len(self.frame_t_s)
+        pairs = [(b - j, b, j) for b in range(1, n) for j in range(1, min(k_max, b) + 1)]
+        a = np.array([p[0] for p in pairs], dtype=int)
+        b = np.array([p[1] for p in pairs], dtype=int)
+        noise = np.stack([self._noise(bb, aa, None if j == 1 else j) for aa, bb, j in pairs]) \
+            if pairs else np.zeros((0, self.n_blocks, 2))
+        d = jit[b] - jit[a] + noise * (self.sigma_px * self.noise_scale)
+        sigma = np.broadcast_to(np.maximum(self.sigma_px, 1e-12), d.shape).copy()
+        return a, b, d, sigma, np.ones(d.shape[:2], bool)
 
     def rereference(self, k: int) -> None:
         self.ref = k

@@ -144,7 +144,7 @@ def _run(sc: Scenario, out: Path, save_frames: bool, fresh: bool, progress: Prog
     drawing = []
     rendered = None
     if sc.product.enabled:
-        rendered = _product(m, res, truth, frames, out, fresh, metrics, files)
+        rendered = _product(m, res, truth, plant, out, fresh, metrics, files)
         if report_figures:
             drawing.append(jobs.submit(write_quicklook, out))
     if sc.metrics.blur_images and not m.imager.scanning:  # a TDI product is its own picture
@@ -173,7 +173,7 @@ def _run(sc: Scenario, out: Path, save_frames: bool, fresh: bool, progress: Prog
     return metrics, info
 
 
-def _product(m: Models, res, truth, frames, out: Path, fresh: bool, metrics: dict,
+def _product(m: Models, res, truth, plant, out: Path, fresh: bool, metrics: dict,
              files: list):
     """The main imager's product (:func:`imc.wiring.product.product_study`) from the ground's
     record (:mod:`imc.wiring.links`, :mod:`imc.wiring.restitution`) into ``product/`` and
@@ -184,7 +184,7 @@ def _product(m: Models, res, truth, frames, out: Path, fresh: bool, metrics: dic
     from imc.wiring.product import plan_product, product_study
     from imc.wiring.restitution import restitute
 
-    links = measure_links(m, res.record, frames, truth.stage_mean_px,
+    links = measure_links(m, res.record, plant, truth.stage_mean_px,
                           m.scenario.product.restitution.baselines)
     (out / "product").mkdir(parents=True, exist_ok=True)
     write_npz(out / "product" / "links.npz", **links.arrays())

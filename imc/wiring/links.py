@@ -148,16 +148,18 @@ def _extra_blocks(m: Models, frames: np.ndarray, stage_mean: np.ndarray, k_max: 
             np.stack(out_v))
 
 
-def measure_links(m: Models, rec, frames: np.ndarray | None, stage_mean: np.ndarray,
+def measure_links(m: Models, rec, plant, stage_mean: np.ndarray,
                   k_max: int | None = None) -> LinkTable:
-    """Every link of a run: the loop's own and, for a chained tracker with its frames, the
-    baselines 2..K (``k_max``; None: :func:`overlap_baselines`).
+    """Every link of a run: the loop's own and, for a chained tracker, the baselines 2..K
+    (``k_max``; None: :func:`overlap_baselines`): measured on an image plant's stored frames,
+    or given by a plant that models its links (the analytic plant's ``pair_links``).
 
     Parameters
     ----------
     m : the run's models.
     rec : the loop's record (:class:`compensation.loop.LoopRecord`).
-    frames : (T, rows, cols) the tracker's frames (None: the loop's links only).
+    plant : the run's plant (its ``frames`` (T, rows, cols) or ``pair_links``; None: the
+        loop's links only).
     stage_mean : (T, 2) the stage's mean over each tracker exposure, px.
     k_max : the most baselines.
 
@@ -166,10 +168,18 @@ def measure_links(m: Models, rec, frames: np.ndarray | None, stage_mean: np.ndar
     LinkTable
     """
     k_max = overlap_baselines(m) if k_max is None else int(k_max)
-    parts = [_loop_blocks(m, rec, stage_mean)]
-    if frames is not None and m.chain and k_max >= 2:
-        parts.append(_extra_blocks(m, frames, stage_mean, k_max))
-    loop = np.concatenate([np.full(len(p[0]), i == 0) for i, p in enumerate(parts)])
+    frames = getattr(plant, "frames", None)
+    pairs = getattr(plant, "pair_links", None)
+    if m.chain and frames is None and pairs is not None:
+        parts = [pairs(k_max)]
+        loop_flag = [parts[0][1] - parts[0][0] == 1]
+    else:
+        parts = [_loop_blocks(m, rec, stage_mean)]
+        loop_flag = [np.ones(len(parts[0][0]), bool)]
+        if frames is not None and m.chain and k_max >= 2:
+            parts.append(_extra_blocks(m, frames, stage_mean, k_max))
+            loop_flag.append(np.zeros(len(parts[1][0]), bool))
+    loop = np.concatenate(loop_flag)
     a, b, d, s, v = (np.concatenate(x) for x in zip(*parts, strict=True))
     mean, sig, nblk, chi2 = _combine(d, s, v)
     ok = nblk >= 2

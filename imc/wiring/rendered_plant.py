@@ -353,7 +353,7 @@ def analytic_plant(m: Models, sigma_px) -> AnalyticPlant:
     return AnalyticPlant(motion, centers, sigma_px, m.frame_t_s, m.exposure_s,
                          seed=tuple(streams.key(m.scenario.seed, "analytic")),
                          samples=m.scenario.metrics.samples_per_frame, nominal_px=nominal,
-                         field_nominal_px=field_nominal)
+                         field_nominal_px=field_nominal, chain=m.chain)
 
 
 def build_plant(m: Models):

@@ -177,8 +177,24 @@ class LoopModel:
             return b, a, False
         raise TypeError(f"no transfer function for controller {type(c).__name__}")
 
-    def _plant_polys(self) -> tuple[np.ndarray, np.ndarray]:
-        """(G, G_pq) in z^-1: G = z^-n (P - Q) + G0 (feedback), G_pq = z^-n (P - Q)."""
+    def plant_polys(self) -> tuple[np.ndarray, np.ndarray]:
+        """The plant as the controller sees it: polynomials in z^-1 (G, G_pq).
+
+        ``G_pq = z^-n (P - Q)``: the commands' effect on the measurement that the estimator
+        does not assume, ``P`` and ``Q`` the exposure means (px per px of command) of the
+        stage's and of an ideal held command's response to one unit command held one period
+        (``p``, ``q`` of :attr:`pulse`), delayed by the ``n`` ticks of :attr:`timing`.
+        ``G = G_pq + G0``: the whole plant in a feedback loop, ``G0 = z^-1`` for a Smith
+        predictor or ``z^-n Q`` otherwise (then ``G = z^-n P``). The loop transfer is
+        ``C G`` (feedback) or ``F G_pq`` (Kalman predictor); see the module docstring.
+
+        Returns
+        -------
+        g : numpy.ndarray
+            Coefficients of ``G`` in ascending powers of z^-1 (dimensionless, px/px).
+        g_pq : numpy.ndarray
+            Coefficients of ``G_pq`` in ascending powers of z^-1 (dimensionless, px/px).
+        """
         n, _ = self.timing
         p, q, *_ = self.pulse
         shift = np.zeros(n)
@@ -196,7 +212,7 @@ class LoopModel:
         b, a, predictor = self.controller_tf()
         n, _ = self.timing
         c = polyval(x, b) / polyval(x, a)
-        g, g_pq = self._plant_polys()
+        g, g_pq = self.plant_polys()
         lp = polyval(x, g_pq if predictor else g)
         return c * x**n / (1.0 + c * lp)
 
@@ -205,7 +221,7 @@ class LoopModel:
         x = 1.0 / self._z(f_hz)
         b, a, predictor = self.controller_tf()
         c = polyval(x, b) / polyval(x, a)
-        g, g_pq = self._plant_polys()
+        g, g_pq = self.plant_polys()
         return c * polyval(x, g_pq if predictor else g)
 
     def stage_response(self, f_hz) -> np.ndarray:
@@ -238,7 +254,7 @@ class LoopModel:
     def characteristic(self) -> np.ndarray:
         """Characteristic polynomial in z^-1 (its roots in z^-1 must lie outside |x| = 1)."""
         b, a, predictor = self.controller_tf()
-        g, g_pq = self._plant_polys()
+        g, g_pq = self.plant_polys()
         other = polymul(b, g_pq if predictor else g)
         out = np.zeros(max(len(a), len(other)))
         out[: len(a)] += a
@@ -298,7 +314,7 @@ def design_lines(controller: FeedbackController, model: LoopModel) -> FeedbackCo
                                line_alias=None)
     m = dataclasses.replace(model, controller=bare)
     b, a = bare.core()
-    g, _ = m._plant_polys()
+    g, _ = m.plant_polys()
     n, _ = m.timing
     phases, mus, aliases = [], [], []
     for ln in controller.lines:

@@ -63,7 +63,7 @@ def sensitivity_polys(model) -> tuple[np.ndarray, np.ndarray]:
     (:meth:`LoopModel.command_tf`) and P(z) the stage's exposure means per held command.
     den is the closed loop's characteristic polynomial."""
     b, a, predictor = model.controller_tf()
-    g, g_pq = model._plant_polys()
+    g, g_pq = model.plant_polys()
     n, _ = model.timing
     p, *_ = model.pulse
     loop = g_pq if predictor else g

@@ -75,6 +75,29 @@ def edge_mtf(img: np.ndarray, oversample: int = 4, margin: int = 8):
 
     The MTF is along the image's row axis (across the edge). For the column axis pass the
     transpose of an image with a nearly vertical edge. ``margin`` px are cut on every side.
+
+    Parameters
+    ----------
+    img : numpy.ndarray, (n_rows, n_cols)
+        Image (any intensity units) holding one nearly horizontal edge; rows and columns are
+        px.
+    oversample : int, optional
+        ESF bins per px (4: quarter-px bins, as ISO 12233).
+    margin : int, optional
+        Border cut off on every side before the fit, px (>= 1).
+
+    Returns
+    -------
+    freqs : numpy.ndarray
+        Spatial frequencies, cycles/px, from 0 to ``oversample / 2``.
+    mtf : numpy.ndarray
+        MTF at ``freqs`` (dimensionless, 1 at 0), corrected for the finite difference's
+        sinc.
+
+    References
+    ----------
+    ISO 12233:2017, "Photography -- Electronic still picture imaging -- Resolution and
+    spatial frequency responses" (slanted-edge SFR).
     """
     esf, centre = _edge_bins(img, oversample, margin)
     half = ESF_HALF_PX * oversample  # +-16 px around the edge
@@ -88,7 +111,26 @@ def edge_mtf(img: np.ndarray, oversample: int = 4, margin: int = 8):
 
 
 def value_at(f: np.ndarray, mtf: np.ndarray, f0: float) -> float:
-    """The curve (f, mtf) at frequency f0 (linear interpolation)."""
+    """The curve (f, mtf) at frequency f0 (linear interpolation).
+
+    Parameters
+    ----------
+    f : numpy.ndarray
+        Increasing frequencies, cycles/px.
+    mtf : numpy.ndarray
+        The curve's values at ``f`` (dimensionless).
+    f0 : float
+        Frequency to read the curve at, cycles/px (held at the end values outside ``f``).
+
+    Returns
+    -------
+    float
+        The curve at ``f0`` (dimensionless).
+
+    References
+    ----------
+    ``numpy.interp``, which it wraps.
+    """
     return float(np.interp(f0, f, mtf))
 
 
@@ -99,6 +141,31 @@ def edge_spread(img: np.ndarray, oversample: int = 4, margin: int = 8):
     the bright side), the ESF scaled to 0 on the dark plateau and 1 on the bright one (the
     means beyond ``PLATEAU_PX`` from the edge, within +-16 px), and the plateaus' difference
     (image units). Same binning as :func:`edge_mtf`.
+
+    Parameters
+    ----------
+    img : numpy.ndarray, (n_rows, n_cols)
+        Image (any intensity units) holding one nearly horizontal edge; rows and columns are
+        px.
+    oversample : int, optional
+        ESF bins per px (4: quarter-px bins).
+    margin : int, optional
+        Border cut off on every side before the fit, px (>= 1).
+
+    Returns
+    -------
+    dist_px : numpy.ndarray
+        Distance of each ESF bin to the fitted edge, px, increasing toward the bright side,
+        in steps of ``1 / oversample`` px.
+    esf : numpy.ndarray
+        The ESF at ``dist_px``, dimensionless: 0 on the dark plateau, 1 on the bright one.
+    contrast : float
+        Bright minus dark plateau, image (intensity) units, > 0.
+
+    References
+    ----------
+    ISO 12233:2017, "Photography -- Electronic still picture imaging -- Resolution and
+    spatial frequency responses" (the slanted edge's binning).
     """
     esf, centre = _edge_bins(img, oversample, margin)
     half = ESF_HALF_PX * oversample
@@ -119,13 +186,49 @@ def edge_spread(img: np.ndarray, oversample: int = 4, margin: int = 8):
 
 
 def rer_from_esf(dist_px: np.ndarray, esf: np.ndarray) -> float:
-    """Relative edge response: normalised ESF at +0.5 px minus at -0.5 px (GIQE)."""
+    """Relative edge response: normalised ESF at +0.5 px minus at -0.5 px (GIQE).
+
+    Parameters
+    ----------
+    dist_px : numpy.ndarray
+        Increasing distances to the edge, px (as from :func:`edge_spread`).
+    esf : numpy.ndarray
+        Normalised ESF at ``dist_px`` (dimensionless, 0 dark, 1 bright).
+
+    Returns
+    -------
+    float
+        RER, dimensionless (the ESF's rise per px across the edge).
+
+    References
+    ----------
+    Leachtenauer, J. C., et al., "General Image-Quality Equation: GIQE", Applied Optics
+    36(32), 1997.
+    """
     return float(np.interp(0.5, dist_px, esf) - np.interp(-0.5, dist_px, esf))
 
 
 def overshoot_from_esf(dist_px: np.ndarray, esf: np.ndarray) -> float:
     """Edge overshoot H (GIQE 4): max of the normalised ESF at 1.0..3.0 px (0.25 px steps),
-    or its value at 1.25 px if it rises monotonically there (Leachtenauer et al. 1997)."""
+    or its value at 1.25 px if it rises monotonically there (Leachtenauer et al. 1997).
+
+    Parameters
+    ----------
+    dist_px : numpy.ndarray
+        Increasing distances to the edge, px (as from :func:`edge_spread`).
+    esf : numpy.ndarray
+        Normalised ESF at ``dist_px`` (dimensionless, 0 dark, 1 bright).
+
+    Returns
+    -------
+    float
+        Overshoot H, dimensionless (1 for an edge without overshoot).
+
+    References
+    ----------
+    Leachtenauer, J. C., et al., "General Image-Quality Equation: GIQE", Applied Optics
+    36(32), 1997.
+    """
     er = np.interp(np.arange(1.0, 3.25, 0.25), dist_px, esf)
     return float(er[1] if np.all(np.diff(er) > 0) else np.max(er))
 
@@ -144,7 +247,29 @@ class EdgeFigures:
 
 
 def edge_figures(img: np.ndarray, oversample: int = 4, margin: int = 8) -> EdgeFigures:
-    """MTF at Nyquist, RER, overshoot H and contrast across a nearly horizontal edge."""
+    """MTF at Nyquist, RER, overshoot H and contrast across a nearly horizontal edge.
+
+    Parameters
+    ----------
+    img : numpy.ndarray, (n_rows, n_cols)
+        Finite image (any intensity units) holding one nearly horizontal edge, at least
+        ``2 * margin + 2 * ESF_HALF_PX`` px a side.
+    oversample : int, optional
+        ESF bins per px (4: quarter-px bins).
+    margin : int, optional
+        Border cut off on every side before the fit, px (>= 1).
+
+    Returns
+    -------
+    EdgeFigures
+        MTF at Nyquist (0.5 cycles/px), RER and overshoot H (dimensionless) along the row
+        axis, and the edge's contrast (image units).
+
+    References
+    ----------
+    ISO 12233:2017 (slanted-edge MTF); Leachtenauer, J. C., et al., "General Image-Quality
+    Equation: GIQE", Applied Optics 36(32), 1997 (RER, overshoot H).
+    """
     a = _check_image(img, "img", min_size=2 * margin + 2 * ESF_HALF_PX)
     f, mtf = edge_mtf(a, oversample, margin)
     dist, esf, contrast = edge_spread(a, oversample, margin)
@@ -160,6 +285,28 @@ def niirs_giqe5(rer_1: float, rer_2: float, gsd_m: float, snr: float,
     geometric mean (max * min^2)^(1/3)); ``gsd_m``: image-plane geometric-mean GSD (m);
     ``snr``: contrast SNR; ``elevation_rad``: sensor elevation seen from the target (pi/2 at
     nadir). Reference: NGA, "General Image Quality Equation version 5.0", 2015.
+
+    Parameters
+    ----------
+    rer_1, rer_2 : float
+        Relative edge response along two perpendicular axes, dimensionless, > 0.
+    gsd_m : float
+        Geometric-mean ground sample distance, m, > 0.
+    snr : float
+        Contrast SNR (edge contrast over noise sigma), dimensionless, > 0.
+    elevation_rad : float
+        Sensor elevation seen from the target, rad, in (0, pi/2] (pi/2 at nadir).
+
+    Returns
+    -------
+    float
+        NIIRS (the rating scale's units).
+
+    References
+    ----------
+    NGA, "General Image Quality Equation (GIQE) version 5.0", 2015;
+    ``pybsm.metrics.functional.giqe5``, which it wraps (LeMaster & Eismann, "pyBSM: A Python
+    package for modeling imaging systems", Proc. SPIE 10204, 2017).
     """
     from pybsm.metrics.functional import giqe5
 
@@ -240,6 +387,45 @@ def image_quality(product: np.ndarray, static: np.ndarray | None = None, *,
     processing (for the noise gain); ``gsd_m`` and ``elevation_rad``: for NIIRS (GIQE 5 needs
     both edges, the flat region and the GSD); ``static`` (and ``valid``): the motion-free
     product for PSNR/SSIM, ``data_range`` defaulting to the static's peak-to-peak.
+
+    Parameters
+    ----------
+    product : numpy.ndarray, (n_lines, n_cols)
+        The product, image (intensity) units; rows are lines, px.
+    static : numpy.ndarray, (n_lines, n_cols), optional
+        The motion-free product, same units and shape, for PSNR and SSIM.
+    edge_roi_along : tuple of slice, optional
+        (row slice, col slice), px, of a region holding a nearly horizontal edge.
+    edge_roi_across : tuple of slice, optional
+        (row slice, col slice), px, of a region holding a nearly vertical edge.
+    flat_roi : tuple of slice, optional
+        (row slice, col slice), px, of a uniform region (noise, SNR).
+    noise_sigma_in : float, optional
+        Noise sigma before processing, image units, > 0 (for the noise gain).
+    gsd_m : float, optional
+        Geometric-mean ground sample distance, m (for NIIRS).
+    elevation_rad : float, optional
+        Sensor elevation seen from the target, rad (pi/2 at nadir; for NIIRS).
+    valid : numpy.ndarray of bool, (n_lines, n_cols), optional
+        Pixels that count for PSNR/SSIM (default: the finite ones).
+    data_range : float, optional
+        Dynamic range for PSNR/SSIM, image units (default: the static's peak-to-peak).
+
+    Returns
+    -------
+    ImageQuality
+        The figures (None where their input was not given): MTF at Nyquist, RER and H
+        (dimensionless), noise sigma (image units), noise gain and SNR (dimensionless),
+        NIIRS, GSD (m), elevation (rad), PSNR (dB), SSIM (dimensionless).
+
+    References
+    ----------
+    ISO 12233:2017 (slanted-edge MTF); Leachtenauer, J. C., et al., "General Image-Quality
+    Equation: GIQE", Applied Optics 36(32), 1997 (RER, H); NGA, "General Image Quality
+    Equation version 5.0", 2015 (NIIRS); Wang, Z., Bovik, A. C., Sheikh, H. R., Simoncelli,
+    E. P., "Image quality assessment: from error visibility to structural similarity", IEEE
+    Trans. Image Processing 13(4), 2004, through ``skimage.metrics.structural_similarity``
+    (SSIM).
     """
     p = np.asarray(product, dtype=np.float64)
     if p.ndim != 2 or p.size == 0:
@@ -303,6 +489,35 @@ def motion_mtf_vs_pybsm(r_px: np.ndarray, model: str, axis: int = 0,
     ``jitter_OTF`` (IBSM eq. 3-28, exp(-2 pi^2 s^2 f^2)) for Gaussian jitter of ``sigma_px``
     (default: the samples' RMS about their mean). pyBSM takes angles; with an IFOV of 1 the
     angles are px and the frequencies cycles/px.
+
+    Parameters
+    ----------
+    r_px : numpy.ndarray, (T, 2)
+        Residual motion samples (row, col), px, evenly spaced in time over the exposure,
+        T >= 2.
+    model : {"drift", "jitter"}
+        pyBSM's OTF to compare with.
+    axis : int, optional
+        0 (row) or 1 (col): the axis of the motion and of the frequencies.
+    freqs : numpy.ndarray, optional
+        Spatial frequencies, cycles/px (default: 41 from 0 to 1).
+    smear_px : float, optional
+        Length of the linear smear for ``"drift"``, px.
+    sigma_px : float, optional
+        Jitter standard deviation for ``"jitter"``, px.
+
+    Returns
+    -------
+    MotionMtfCheck
+        The frequencies (cycles/px), both MTFs (dimensionless) and their largest absolute
+        difference.
+
+    References
+    ----------
+    Wulich, D., Kopeika, N. S., "Image resolution limits resulting from mechanical
+    vibrations", Optical Engineering 26(6), 1987 (motion MTF);
+    ``pybsm.otf.functional.drift_OTF`` and ``jitter_OTF`` (IBSM eqs. 3-29 and 3-28), which
+    it calls (LeMaster & Eismann, Proc. SPIE 10204, 2017).
     """
     from pybsm.otf.functional import drift_OTF, jitter_OTF
 

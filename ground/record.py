@@ -72,7 +72,22 @@ class MotionRecord:
 
     def samples(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """The valid samples sorted by time, samples at the same time averaged
-        (their sigma divided by sqrt(count)): (t (k,), motion (k, 2), sigma (k, 2) | None)."""
+        (their sigma divided by sqrt(count)): (t (k,), motion (k, 2), sigma (k, 2) | None).
+
+        Returns
+        -------
+        t : numpy.ndarray, (k,)
+            Distinct sample times, s, increasing.
+        motion : numpy.ndarray, (k, 2)
+            Mean motion (row, col) at each time, px.
+        sigma : numpy.ndarray, (k, 2) or None
+            Its sigma, px (the samples' mean sigma over sqrt(count)), or None without
+            ``sigma_px``.
+
+        References
+        ----------
+        ``numpy.unique`` and ``numpy.bincount``, which it uses.
+        """
         t = self.t_s[self.valid]
         m = self.motion_px[self.valid]
         tu, inv, cnt = np.unique(t, return_inverse=True, return_counts=True)
@@ -89,7 +104,28 @@ class MotionRecord:
 def check_series(t_s, values_px, t_name: str = "t_s",
                  values_name: str = "motion_px") -> tuple[np.ndarray, np.ndarray]:
     """(t (n,), values (n, 2)) float64 of a densely sampled series, or a ValueError naming the
-    argument: at least 2 samples, finite, times strictly increasing."""
+    argument: at least 2 samples, finite, times strictly increasing.
+
+    Parameters
+    ----------
+    t_s : array_like, (n,)
+        Sample times, s, finite, strictly increasing, n >= 2.
+    values_px : array_like, (n, 2)
+        Samples (row, col), px, finite.
+    t_name, values_name : str, optional
+        The arguments' names for the error message.
+
+    Returns
+    -------
+    t : numpy.ndarray, (n,)
+        The times, s, float64.
+    values : numpy.ndarray, (n, 2)
+        The samples, px, float64.
+
+    References
+    ----------
+    None: argument checking only (``numpy.asarray``).
+    """
     t = np.asarray(t_s, dtype=np.float64)
     v = np.asarray(values_px, dtype=np.float64)
     if t.ndim != 1 or t.size < 2 or v.shape != (t.size, 2):
@@ -149,6 +185,30 @@ def line_motion(record: MotionRecord, t_line_s, integration_s: float,
     ``integration_s = 0`` (or below 1e-9 of the record's span) samples the interpolant at
     the window's middle. ``method``: one of
     ``METHODS`` (see the module docstring).
+
+    Parameters
+    ----------
+    record : MotionRecord
+        The motion record as received (at least 2 valid sample times).
+    t_line_s : array_like, (n_lines,)
+        Start of each line's integration, s, finite.
+    integration_s : float
+        Line integration time, s, >= 0.
+    method : {"cubic", "pchip", "linear", "smoothing"}, optional
+        The interpolant (``"smoothing"`` needs at least 5 valid samples).
+
+    Returns
+    -------
+    numpy.ndarray, (n_lines, 2)
+        Each line's exposure-averaged motion (row, col), px.
+
+    References
+    ----------
+    ``scipy.interpolate.CubicSpline`` (not-a-knot), ``PchipInterpolator`` (Fritsch, F. N.,
+    Carlson, R. E., "Monotone piecewise cubic interpolation", SIAM J. Numer. Anal. 17(2),
+    1980), ``make_interp_spline`` (k=1) and ``make_smoothing_spline`` (generalised
+    cross-validation: Craven, P., Wahba, G., "Smoothing noisy data with spline functions",
+    Numer. Math. 31, 1979); the exact average through their ``antiderivative``.
     """
     t_line = _check_lines(t_line_s, integration_s)
     if method not in METHODS:
@@ -171,7 +231,28 @@ def line_motion(record: MotionRecord, t_line_s, integration_s: float,
 
 def exposure_average(t_s, motion_px, t_line_s, integration_s: float) -> np.ndarray:
     """Exact per-line motion (n_lines, 2) px from densely sampled truth (t_s (n,) s,
-    motion_px (n, 2) px): the piecewise-linear truth averaged over each line's window."""
+    motion_px (n, 2) px): the piecewise-linear truth averaged over each line's window.
+
+    Parameters
+    ----------
+    t_s : array_like, (n,)
+        Times of the truth's samples, s, finite.
+    motion_px : array_like, (n, 2)
+        The true motion (row, col) at ``t_s``, px, finite.
+    t_line_s : array_like, (n_lines,)
+        Start of each line's integration, s.
+    integration_s : float
+        Line integration time, s, >= 0.
+
+    Returns
+    -------
+    numpy.ndarray, (n_lines, 2)
+        Each line's exposure-averaged true motion (row, col), px.
+
+    References
+    ----------
+    ``scipy.interpolate.make_interp_spline`` (k=1) through :func:`line_motion`.
+    """
     t = np.asarray(t_s, dtype=np.float64)
     rec = MotionRecord(t, motion_px, np.ones(t.shape, bool))
     return line_motion(rec, t_line_s, integration_s, method="linear")
@@ -183,7 +264,28 @@ def perfect_record(record: MotionRecord, truth_t_s, truth_px,
     ``truth_t_s`` (n,) s, ``truth_px`` (n, 2) px, linearly interpolated) at the record's own
     sample times, no sigma. ``keep_gaps``: keep the record's invalid samples invalid (only
     noise, bias and delay removed) or make every sample valid. Samples outside the truth's span
-    are invalid."""
+    are invalid.
+
+    Parameters
+    ----------
+    record : MotionRecord
+        The record whose sample times (s) and gaps are kept.
+    truth_t_s : array_like, (n,)
+        Times of the truth's samples, s, finite, strictly increasing.
+    truth_px : array_like, (n, 2)
+        The true motion (row, col) at ``truth_t_s``, px.
+    keep_gaps : bool, optional
+        Keep the record's invalid samples invalid (True) or make all valid (False).
+
+    Returns
+    -------
+    MotionRecord
+        The truth at the record's sample times (s), px, without sigma.
+
+    References
+    ----------
+    ``numpy.interp``, which it uses.
+    """
     tt, tp = check_series(truth_t_s, truth_px, "truth_t_s", "truth_px")
     t = record.t_s
     tf = np.where(np.isfinite(t), t, tt[0] - 1.0)

@@ -65,6 +65,24 @@ def source_coordinates(line_offset_px: np.ndarray, shape: tuple[int, int]) -> np
     Solves ``(l, c) + off(l, c) = (y, x)`` (Newton on l for per-line offsets, fixed-point
     iteration for field-dependent ones) with the offsets cubic-spline interpolated and held
     constant beyond the strip's ends.
+
+    Parameters
+    ----------
+    line_offset_px : numpy.ndarray, (n, 2) or (n, m, 2)
+        Offsets (row, col) of each line, or of each pixel, px (the module docstring's
+        convention).
+    shape : tuple of int
+        The strip's (n_lines, n_cols), px.
+
+    Returns
+    -------
+    numpy.ndarray, (2, n, m)
+        Source coordinates (l*, c*) in the strip of each nominal pixel (y, x), px.
+
+    References
+    ----------
+    ``scipy.interpolate.CubicSpline`` (per-line offsets); ``scipy.ndimage.spline_filter`` and
+    ``scipy.ndimage.map_coordinates`` (order 3, field-dependent offsets).
     """
     n, m = shape
     off = np.asarray(line_offset_px, dtype=np.float64)
@@ -109,6 +127,30 @@ def rectify(strip, line_offset_px, *, order: int = 3, fill: float = np.nan,
     ((n_lines, 2) or (n_lines, n_cols, 2), (row, col) px, the convention in the module
     docstring). ``order``: the B-spline order of ``map_coordinates`` (3: cubic); pixels whose
     source lies more than ``edge_tol_px`` outside the strip are invalid and set to ``fill``.
+
+    Parameters
+    ----------
+    strip : array_like, (n_lines, n_cols)
+        The strip as imaged, image (intensity) units, finite, n_lines >= 2.
+    line_offset_px : array_like, (n_lines, 2) or (n_lines, n_cols, 2)
+        Offsets (row, col), px; falling by less than 1 px between lines (and changing by less
+        than 1 px between columns).
+    order : int, optional
+        B-spline order of the resampling, 0..5 (3: cubic).
+    fill : float, optional
+        Value of invalid pixels, image units.
+    edge_tol_px : float, optional
+        How far outside the strip a source may lie and still count as inside, px.
+
+    Returns
+    -------
+    Rectified
+        The image on the nominal grid (image units), its valid mask and the source
+        coordinates (2, n_lines, n_cols), px.
+
+    References
+    ----------
+    ``scipy.ndimage.map_coordinates`` (``mode="nearest"``), which it wraps.
     """
     s, off = _check(strip, line_offset_px)
     if order not in range(6):
@@ -138,7 +180,27 @@ class GeometricError:
 
 def geometric_error(estimated_px, true_px, valid=None) -> GeometricError:
     """Per-line error of ``estimated_px`` against ``true_px`` (both (n_lines, 2) or
-    (n_lines, n_cols, 2) px); ``valid`` (n_lines,) or (n_lines, n_cols) selects what counts."""
+    (n_lines, n_cols, 2) px); ``valid`` (n_lines,) or (n_lines, n_cols) selects what counts.
+
+    Parameters
+    ----------
+    estimated_px : array_like, (n_lines, 2) or (n_lines, n_cols, 2)
+        Estimated offsets (row, col), px.
+    true_px : array_like
+        True offsets, px, same shape.
+    valid : array_like of bool, (n_lines,) or (n_lines, n_cols), optional
+        Lines (or pixels) that count (default: all).
+
+    Returns
+    -------
+    GeometricError
+        RMS, peak-to-peak, bias and largest absolute error per axis (row, col), px, and the
+        count ``n``.
+
+    References
+    ----------
+    None: plain statistics (``numpy.mean``, ``numpy.ptp``).
+    """
     e = np.asarray(estimated_px, dtype=np.float64)
     t = np.asarray(true_px, dtype=np.float64)
     if e.shape != t.shape or e.ndim not in (2, 3) or e.shape[-1] != 2 or e.shape[0] == 0:

@@ -1,14 +1,15 @@
 """Restoration: the residual-motion PSF and its removal by deconvolution.
 
 The PSF of an exposure (or a run of lines) is the time the image spends at each offset of the
-residual motion r(t) (Wulich & Kopeika 1987; imcsim's ``imc/blur.py`` computes the same from
-the truth): a time-weighted histogram on a fine grid (bins of a fraction of a px, odd, centred
-on the mean, since rectification has already taken the mean offset out). Deconvolution needs
-it on the image's pixel grid: each sample is spread over the pixels by a Lanczos-3 kernel
-(a windowed sinc: the real part of a fractional shift's band-limited transfer, cos(2 pi f r),
-is kept to 0.02 up to 0.3 cycles/px and to 0.12 at worst up to Nyquist, against 0.28 for a
-linear-interpolation "splat"; a 1 px smear's Nyquist MTF comes out 2/pi to 0.01, where the
-splat gives 0.5). The pixel kernel is built from the samples themselves, not the bins.
+residual motion r(t) (Wulich & Kopeika 1987; imcsim's ``imc/wiring/blur.py``
+(:mod:`imc.wiring.blur`) computes the same from the truth): a time-weighted histogram on a fine
+grid (bins of a fraction of a px, odd, centred on the mean, since rectification has already
+taken the mean offset out). Deconvolution needs it on the image's pixel grid: each sample is
+spread over the pixels by a Lanczos-3 kernel (a windowed sinc: the real part of a fractional
+shift's band-limited transfer, cos(2 pi f r), is kept to 0.02 up to 0.3 cycles/px and to 0.12
+at worst up to Nyquist, against 0.28 for a linear-interpolation "splat"; a 1 px smear's Nyquist
+MTF comes out 2/pi to 0.01, where the splat gives 0.5). The pixel kernel is built from the
+samples themselves, not the bins.
 
 Deconvolution uses scikit-image (``skimage.restoration``): ``wiener`` (Wiener-Hunt with a
 constant regulariser, the balance being the noise-to-signal power ratio nsr^2, or skimage's
@@ -83,6 +84,30 @@ def residual_psf(r_px, *, weights=None, bin_px: float = PSF_BIN_PX,
     ``weights`` (T,): the time each sample stands for (s, any scale; default equal: samples
     evenly spaced in time). ``about_mean``: centre on the time-weighted mean offset (the part
     rectification removes) or on zero.
+
+    Parameters
+    ----------
+    r_px : array_like, (T, 2)
+        Residual motion samples (row, col), px, finite, T >= 1.
+    weights : array_like, (T,), optional
+        Time each sample stands for, s (any scale), >= 0, not all zero.
+    bin_px : float, optional
+        Bin size of the fine histogram, px.
+    about_mean : bool, optional
+        Centre on the time-weighted mean offset (True) or on zero (False).
+
+    Returns
+    -------
+    ResidualPsf
+        The fine histogram on ``bin_px`` px bins, its centre (row, col) px, and the
+        pixel-grid kernel (1 px bins); both sum to 1.
+
+    References
+    ----------
+    Wulich, D., Kopeika, N. S., "Image resolution limits resulting from mechanical
+    vibrations", Optical Engineering 26(6), 1987 (the motion PSF as a time histogram);
+    Duchon, C. E., "Lanczos filtering in one and two dimensions", J. Appl. Meteorology 18,
+    1979 (the Lanczos kernel); ``numpy.histogram2d``.
     """
     r = np.asarray(r_px, dtype=np.float64)
     if r.ndim != 2 or r.shape[1] != 2 or r.shape[0] == 0 or not np.all(np.isfinite(r)):
@@ -120,6 +145,33 @@ def run_psfs(t_s, residual_px, t_line_s, integration_s: float, run_starts, *,
     ``n_sub`` evenly spaced instants (linear interpolation of the residual). Each line's
     residual is taken about its own mean (rectification removes that), and the lines of run
     ``i`` (``run_starts[i]`` to ``run_starts[i + 1]``) are pooled into one PSF.
+
+    Parameters
+    ----------
+    t_s : array_like, (n,)
+        Times of the residual samples, s, strictly increasing.
+    residual_px : array_like, (n, 2)
+        Residual motion (row, col) at ``t_s``, px.
+    t_line_s : array_like, (n_lines,)
+        Start of each line's integration, s.
+    integration_s : float
+        Line integration time, s, >= 0.
+    run_starts : array_like of int
+        First line of each run (lines), starting at 0, strictly increasing.
+    n_sub : int, optional
+        Instants sampled per line's integration window (>= 1).
+    bin_px : float, optional
+        Bin size of the fine histograms, px.
+
+    Returns
+    -------
+    list of ResidualPsf
+        One PSF per run (see :func:`residual_psf`).
+
+    References
+    ----------
+    Wulich, D., Kopeika, N. S., "Image resolution limits resulting from mechanical
+    vibrations", Optical Engineering 26(6), 1987; ``numpy.interp``.
     """
     t, r = check_series(t_s, residual_px, "t_s", "residual_px")
     tl = np.asarray(t_line_s, dtype=np.float64)
@@ -161,6 +213,38 @@ def deconvolve(image, psf, *, method: str = DEFAULT_METHOD, nsr: float = 0.02,
     needs a non-negative image; the PSF's negative Lanczos lobes are clipped). The image is
     padded by reflection by ``pad_px`` (default: 4 PSF half-widths, at least 8) so skimage's
     circular filters wrap nothing.
+
+    Parameters
+    ----------
+    image : array_like, (n_rows, n_cols)
+        Image to restore, image (intensity) units, finite, at least 2 px a side.
+    psf : array_like, (K, L)
+        Pixel-grid PSF (1 px bins), odd sides, summing to 1.
+    method : {"wiener", "wiener_laplacian", "unsupervised_wiener", "richardson_lucy"}, optional
+        The deconvolution.
+    nsr : float, optional
+        Noise-to-signal amplitude ratio (1/SNR), dimensionless, > 0; the Wiener balance is
+        its square.
+    num_iter : int, optional
+        Richardson-Lucy iterations.
+    pad_px : int, optional
+        Reflection padding each side, px (default: 4 PSF half-widths, at least 8; at most
+        the image's shorter side less 1).
+    rng : numpy.random.Generator or int or None, optional
+        Seed of ``unsupervised_wiener``'s Gibbs sampler.
+
+    Returns
+    -------
+    numpy.ndarray, (n_rows, n_cols)
+        The restored image, image units.
+
+    References
+    ----------
+    ``skimage.restoration.wiener``, ``skimage.restoration.unsupervised_wiener`` (Orieux, F.,
+    Giovannelli, J.-F., Rodet, T., "Bayesian estimation of regularization and point spread
+    function parameters for Wiener-Hunt deconvolution", JOSA A 27(7), 2010) and
+    ``skimage.restoration.richardson_lucy`` (Richardson, W. H., JOSA 62(1), 1972; Lucy,
+    L. B., Astronomical Journal 79, 1974), which it wraps.
     """
     from skimage import restoration
 
@@ -195,7 +279,29 @@ def deconvolve(image, psf, *, method: str = DEFAULT_METHOD, nsr: float = 0.02,
 def noise_transfer(psf, shape: tuple[int, int], nsr: float,
                    method: str = "wiener") -> float:
     """Noise gain of the linear Wiener filters: RMS of the filter's transfer over the DFT
-    grid of ``shape`` (white input noise: output sigma / input sigma)."""
+    grid of ``shape`` (white input noise: output sigma / input sigma).
+
+    Parameters
+    ----------
+    psf : array_like, (K, L)
+        Pixel-grid PSF (1 px bins), odd sides, summing to 1.
+    shape : tuple of int
+        The image's (n_rows, n_cols), px, at least the PSF's.
+    nsr : float
+        Noise-to-signal amplitude ratio (1/SNR), dimensionless; the balance is its square.
+    method : {"wiener", "wiener_laplacian"}, optional
+        Constant or Laplacian regulariser, as :func:`deconvolve`.
+
+    Returns
+    -------
+    float
+        Noise gain, dimensionless (output over input noise sigma).
+
+    References
+    ----------
+    ``skimage.restoration.wiener`` (the filter it evaluates) and
+    ``skimage.restoration.uft.laplacian``.
+    """
     from skimage.restoration import uft
 
     if method not in ("wiener", "wiener_laplacian"):
@@ -224,6 +330,30 @@ def restore_strip(strip, psfs, run_starts, *, overlap_lines: int = 16,
     deconvolution's own padding each side; neighbouring runs are blended by linear ramps
     ``overlap_lines`` wide centred on their boundary (weights sum to 1). ``kwargs`` go to
     :func:`deconvolve`.
+
+    Parameters
+    ----------
+    strip : array_like, (n_lines, n_cols)
+        The strip, image (intensity) units, finite.
+    psfs : sequence of array_like
+        One pixel-grid PSF (1 px bins, odd sides, summing to 1) per run.
+    run_starts : array_like of int
+        First line of each run (lines), starting at 0, strictly increasing.
+    overlap_lines : int, optional
+        Width of the blending ramps, lines (px), in [0, the shortest run].
+    method : str, optional
+        The deconvolution, as :func:`deconvolve`.
+    **kwargs
+        Passed to :func:`deconvolve` (``nsr``, ``num_iter``, ``pad_px``, ``rng``).
+
+    Returns
+    -------
+    numpy.ndarray, (n_lines, n_cols)
+        The restored strip, image units.
+
+    References
+    ----------
+    The ``skimage.restoration`` filters that :func:`deconvolve` wraps.
     """
     s = np.asarray(strip, dtype=np.float64)
     if s.ndim != 2 or s.size == 0:
@@ -280,7 +410,37 @@ def restoration_figures(static_edge, blurred_edge, psf, noise_sigma: float, *,
                         **kwargs) -> RestorationFigures:
     """Restore ``blurred_edge`` (noisy, a nearly horizontal edge) with ``psf`` and measure it
     against ``static_edge``; the noise gain is measured on a flat field at the edge image's
-    mean level with white noise of ``noise_sigma`` drawn from ``rng`` (seeded default)."""
+    mean level with white noise of ``noise_sigma`` drawn from ``rng`` (seeded default).
+
+    Parameters
+    ----------
+    static_edge : array_like, (n_rows, n_cols)
+        The motion-free edge image, image (intensity) units.
+    blurred_edge : array_like, (n_rows, n_cols)
+        The blurred, noisy edge image, image units.
+    psf : array_like, (K, L)
+        Pixel-grid PSF (1 px bins), odd sides, summing to 1.
+    noise_sigma : float
+        Noise sigma of the flat field, image units, > 0.
+    method : str, optional
+        The deconvolution, as :func:`deconvolve`.
+    rng : numpy.random.Generator, optional
+        Stream of the flat field's noise (default: seeded with 0).
+    **kwargs
+        Passed to :func:`deconvolve`.
+
+    Returns
+    -------
+    RestorationFigures
+        MTF at Nyquist (0.5 cycles/px) of the static, blurred and restored edge and their
+        ratio, noise gain, overshoot H and RER (all dimensionless).
+
+    References
+    ----------
+    ISO 12233:2017 (slanted-edge MTF); Leachtenauer, J. C., et al., "General Image-Quality
+    Equation: GIQE", Applied Optics 36(32), 1997 (RER, H); the ``skimage.restoration``
+    filters that :func:`deconvolve` wraps.
+    """
     from ground.quality import edge_figures
 
     if not (np.isfinite(noise_sigma) and noise_sigma > 0):

@@ -10,6 +10,9 @@ sweeps and tests use (a sweep's workers are already parallel). Both give the sam
 
 from __future__ import annotations
 
+import contextlib
+import os
+import signal
 from collections.abc import Callable
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -74,16 +77,20 @@ def _exit_with_parent() -> None:
     threading.Thread(target=watch, name="imc-helper-parent-watch", daemon=True).start()
 
 
-def _warm() -> None:
+def _warm(pid_conn=None) -> None:
     """The helper's imports, its first drawing (fonts, the Agg canvas, the PNG writer) and
     first recording, made while the main process runs the loop; and its exit without a
     teardown (what it writes is written atomically and its results are sent when each job
-    ends)."""
+    ends). First of all it sends its PID through ``pid_conn`` (the write end of a pipe), so
+    that the main process can stop it without reaching into the pool."""
     import atexit
     import io
     import os
     import signal
 
+    if pid_conn is not None:
+        pid_conn.send(os.getpid())
+        pid_conn.close()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the run's to report, in a line
     _exit_with_parent()
     import matplotlib
@@ -122,19 +129,28 @@ class ProcessJobs:
     def __init__(self) -> None:
         import multiprocessing
 
-        self._pool = ProcessPoolExecutor(max_workers=1, initializer=_warm,
-                                         mp_context=multiprocessing.get_context("spawn"))
+        ctx = multiprocessing.get_context("spawn")
+        # the helper sends its PID back first thing (see _warm): close(cancel=True) stops it
+        self._pid_conn, pid_send = ctx.Pipe(duplex=False)
+        self._helper_pid: int | None = None
+        self._helper_gone = False  # seen to have died (BrokenProcessPool)
+        self._pool = ProcessPoolExecutor(max_workers=1, initializer=_warm, initargs=(pid_send,),
+                                         mp_context=ctx)
         self._jobs: list[tuple[Callable[..., Any], tuple, Future]] = []
         try:
             self._pool.submit(_ready)  # start the helper (and its imports) now
         except BaseException:
             self._pool.shutdown(wait=False)
+            self._pid_conn.close()
             raise
+        finally:
+            pid_send.close()  # the helper holds its own copy: its end alone keeps it open
 
     def submit(self, fn: Callable[..., Any], *args: Any) -> int:
         try:
             fut = self._pool.submit(fn, *args)
         except (BrokenProcessPool, RuntimeError):  # the helper is gone: run it here, after
+            self._helper_gone = True
             self._settle(len(self._jobs) - 1)  # the jobs before it that it did not finish
             fut = _run_here(fn, args)
         self._jobs.append((fn, args, fut))
@@ -152,15 +168,32 @@ class ProcessJobs:
             try:
                 fut.result()
             except BrokenProcessPool:
+                self._helper_gone = True
                 self._jobs[i] = (fn, args, _run_here(fn, args))
             except Exception:  # noqa: BLE001 (the job's own failure, for result())
                 pass
 
+    def _pid(self, timeout_s: float) -> int | None:
+        """The helper's PID, waiting up to ``timeout_s`` (s) for it to send it; None if it
+        ended (or never started) without sending it."""
+        if self._helper_pid is None and not self._pid_conn.closed:
+            try:
+                if self._pid_conn.poll(timeout_s):
+                    self._helper_pid = int(self._pid_conn.recv())
+            except (EOFError, OSError):  # it ended before sending its PID
+                pass
+            self._pid_conn.close()
+        return self._helper_pid
+
     def close(self, cancel: bool = False) -> None:
         if cancel:  # the run failed: nothing it queued is wanted, the helper is stopped now
-            for proc in list(getattr(self._pool, "_processes", {}).values()):
-                proc.terminate()
+            pid = self._pid(timeout_s=30.0)  # its first act: seconds at most, unless it died
+            if pid is not None and not self._helper_gone:  # a dead helper's PID may be reused
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGTERM)
         self._pool.shutdown(wait=True, cancel_futures=cancel)
+        if not self._pid_conn.closed:
+            self._pid_conn.close()
 
 
 def _run_here(fn: Callable[..., Any], args: tuple) -> Future:

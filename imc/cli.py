@@ -235,11 +235,27 @@ def _product_text(p: dict) -> str:
     for name, e in g.items():
         lines.append(f"  {name} lines' offset error RMS row/col px: before "
                      f"{_num(e['before']['rms_px'][0], '.4f')} / "
-                     f"{_num(e['before']['rms_px'][1], '.4f')}, after "
+                     f"{_num(e['before']['rms_px'][1], '.4f')}, after a constant "
                      f"{_num(e['after']['rms_px'][0], '.4f')} / "
-                     f"{_num(e['after']['rms_px'][1], '.4f')}, perfect record "
+                     f"{_num(e['after']['rms_px'][1], '.4f')}, after an affine "
+                     f"{_num(e['affine']['rms_px'][0], '.4f')} / "
+                     f"{_num(e['affine']['rms_px'][1], '.4f')}, perfect record "
                      f"{_num(e['after_perfect_record']['rms_px'][0], '.4f')} / "
                      f"{_num(e['after_perfect_record']['rms_px'][1], '.4f')}")
+        if "control_points" in e:
+            cp = e["control_points"]["rms_px"]
+            lines.append(f"    with the control points, nothing removed: {_num(cp[0], '.4f')}"
+                         f" / {_num(cp[1], '.4f')}")
+    rec = p.get("record", {})
+    if "predicted" in rec:
+        r = rec.get("restitution", {})
+        lines.append(f"  record: {r.get('baselines')} baselines, {r.get('links')} links"
+                     f"{' + ' + ' + '.join(r['aiding']) if r.get('aiding') else ''}; "
+                     f"predicted error after a constant "
+                     f"{_num(rec['predicted']['constant_px'][0], '.4f')} / "
+                     f"{_num(rec['predicted']['constant_px'][1], '.4f')}, after an affine "
+                     f"{_num(rec['predicted']['affine_px'][0], '.4f')} / "
+                     f"{_num(rec['predicted']['affine_px'][1], '.4f')} px")
     return "\n".join(lines)
 
 

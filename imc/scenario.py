@@ -816,6 +816,9 @@ class ProductConfig(_Model):
     metrics.json product."""
 
     enabled: bool = Field(False, description="render and process the product")
+    render: bool = Field(True, description="render the product's images (false: the "
+                         "geometry alone, the lines' offsets from the camera model and the "
+                         "record, no image: for trade studies over long strips)")
     lines: int = Field(512, ge=128, le=65536, description="TDI: lines of the strip; frame: "
                        "rows of the window (centred on the imager)")
     cols: int = Field(512, ge=128, le=16384, description="detector columns (centred; the "

@@ -85,12 +85,13 @@ def product_metrics(ds: xr.Dataset, files: list[Path] | None = None) -> dict:
     imcsim runs kept: expectations, sweeps and users' CI read them)."""
     a = ds.attrs
     render_s = float(a["render_s"])
-    quality = {str(n): _quality(ds, str(n)) for n in ds.version.values}
+    quality = ({str(n): _quality(ds, str(n)) for n in ds.version.values} if "image" in ds
+               else {})
     return {
         "kind": a["kind"], "lines": int(a["lines"]), "cols": int(a["cols"]),
         "samples": int(a["samples"]), "start_s": float(a["start_s"]),
         "integration_s": float(a["integration_s"]), "line_rate_hz": a["line_rate_hz"],
-        "gsd_m": float(a["gsd_m"]), "rays": int(a["rays"]),
+        "gsd_m": _value(a["gsd_m"]), "rays": int(a["rays"]),
         "hit_fraction": float(a["hit_fraction"]), "scene_build_s": float(a["scene_build_s"]),
         "render_s": render_s, "rays_per_s": float(a["rays"] / max(render_s, 1e-9)),
         "ground_s": float(a["ground_s"]), "quality_s": float(a.get("quality_s", 0.0)),
@@ -112,7 +113,7 @@ def write_product(ds: xr.Dataset, folder: Path) -> list[Path]:
     folder.mkdir(parents=True, exist_ok=True)
     files = []
     transform, crs = Affine(*ds.attrs["transform"]), ds.attrs["crs"]
-    for name in ds.version.values:
+    for name in ds.version.values if "image" in ds else ():
         base = str(name).split("_gc")[0]
         sh = (ds.shift_px.sel(moving=base).values if "_gc" in str(name)
               else np.zeros(2))
@@ -133,9 +134,11 @@ def write_product(ds: xr.Dataset, folder: Path) -> list[Path]:
         cols += [ds.predicted_line_px.values[:, 0], ds.predicted_line_px.values[:, 1]]
     write_csv(folder / "lines.csv", header, np.column_stack(cols).tolist())
     files.append(folder / "lines.csv")
-    arrays = {f"scene/{n}": ds.image.sel(version=n).values for n in ds.version.values}
-    arrays |= {f"target/{n}": ds.target_image.sel(version=n).values
-               for n in ds.version.values}
+    arrays = {}
+    if "image" in ds:
+        arrays = {f"scene/{n}": ds.image.sel(version=n).values for n in ds.version.values}
+        arrays |= {f"target/{n}": ds.target_image.sel(version=n).values
+                   for n in ds.version.values}
     for src in ("true", "record", "perfect"):
         arrays |= {f"offset/{src}/{n}": ds.offset_px.sel(source=src, moving=n).values
                    for n in moving}

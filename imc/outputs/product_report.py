@@ -42,7 +42,7 @@ def quicklook_panels(run_dir: Path) -> dict[str, np.ndarray]:
     middle square) on one 8-bit grey scale, the static product's 1-99 % range; {} without a
     product."""
     z = _load(run_dir)
-    if z is None:
+    if z is None or "scene/static" not in z:  # no product, or a geometry-only one
         return {}
     static = z["scene/static"]
     h, w = static.shape
@@ -62,9 +62,9 @@ def write_quicklook(run_dir: Path) -> Path | None:
     import matplotlib.pyplot as plt
 
     z = _load(run_dir)
-    if z is None:
-        return None
     panels = quicklook_panels(run_dir)
+    if z is None or not panels:
+        return None
     side = 2.6  # inches a product
     aspect = next(iter(panels.values())).shape[0] / z["scene/static"].shape[1]
     fig = plt.figure(figsize=(side * len(panels), side * min(aspect, 2.0) + 2.6), dpi=100)
@@ -138,7 +138,7 @@ def log_product(rec, rr, run_dir: Path) -> bool:
     """The products as images (``product/<name>``) and each line's offsets as series
     (``product/offset/<axis>/<true | record>_<open | closed>``, by line index)."""
     z = _load(run_dir)
-    if z is None:
+    if z is None or "scene/static" not in z:
         return False
     static = z["scene/static"]
     lo, hi = np.nanpercentile(static, [1, 99])

@@ -500,47 +500,87 @@ def _correct_version(m: Models, rendered: Rendered, images: dict, name: str, off
     return products, on_grid, valid, shift
 
 
-def ground_versions(m: Models, rendered: Rendered, exposed: Exposed, versions: Versions,
-                    record, perfect, true_stage, restitution=None) -> Ground:
-    """Step 4: the lines' offsets from the record (and the perfect record), the geometry
-    before and after correction, the corrected and restored products; ``restitution``
-    (:class:`imc.wiring.restitution.Restitution`, the record's source) adds the record's
-    predicted error."""
-    t0 = time.perf_counter()
-    plan = rendered.plans["scene"]
+def line_geometry(plan: ProductPlan, versions: Versions, truth_px: dict, record, perfect,
+                  true_stage, restitution=None) -> tuple[dict, dict, dict]:
+    """The lines' offsets and the geometry of every moving version, from the record (and the
+    perfect record) against the truth's offsets ``truth_px`` {version: (L, 2)}: (offsets
+    {source: {version: (L, 2)}}, geometry {version: figures}, the record's error). With a
+    stage and a restitution, the correction is the band-wise blend (stage + ground never
+    worse than the stage alone)."""
+    from ground.record import line_motion
+
     t_mid = plan.line_t_s + 0.5 * plan.integration_s
     absolute = restitution is not None and restitution.absolute
-    nsr = 1.0 / max(m.sensor.snr(exposure_s=plan.integration_s), 1.0)
-    offsets = {"true": {}, "record": {}, "perfect": {}}
-    geometry, products, on_grid, valid, shifts = {}, dict(exposed.images), {}, {}, {}
+    offsets: dict = {"true": {}, "record": {}, "perfect": {}}
+    geometry = {}
     for name in versions.names[1:]:
         stage = versions.stage[name]
-        true = rendered.truth_offset_px[name]
-        if stage is not None and restitution is not None:  # never worse than the stage alone
-            from ground.record import line_motion
-
-            applied, blend = restitution.stage_correction(stage)
-            est = line_motion(applied, plan.line_t_s, plan.integration_s,
-                              RECORD_METHOD) * plan.sign
-        else:
-            est, blend = line_offsets(plan, record, stage), None
+        true = truth_px[name]
+        blend = None
+        est = line_offsets(plan, record, stage)
+        if stage is not None and restitution is not None:
+            # what the blend leaves out of the record's estimate of the stage's residual is
+            # not applied; the stage itself enters exactly at each line's instants
+            left_out, blend = restitution.stage_correction(stage)
+            est = est - line_motion(left_out, plan.line_t_s, plan.integration_s,
+                                    RECORD_METHOD) * plan.sign
         perf = line_offsets(plan, perfect, true_stage if stage is not None else None)
-        (fixed, geometry[name]) = _geometry(est, perf, true, t_mid, absolute)
+        fixed, geometry[name] = _geometry(est, perf, true, t_mid, absolute)
         if blend is not None:
             geometry[name]["blend"] = blend
         offsets["true"][name] = true
         offsets["record"][name], offsets["perfect"][name] = fixed["record"], fixed["perfect"]
-        prod, grid, ok, shifts[name] = _correct_version(m, rendered, exposed.images, name,
-                                                        fixed["record"], record, stage, nsr)
-        products.update(prod)
-        on_grid.update(grid)
-        valid.update(ok)
     err = record_error(record, perfect)
     if restitution is not None:
         err["predicted"] = restitution.predicted_geometry(t_mid)
         offsets["predicted"] = restitution.predicted_px(t_mid)
+    return offsets, geometry, err
+
+
+def ground_versions(m: Models, rendered: Rendered, exposed: Exposed, versions: Versions,
+                    record, perfect, true_stage, restitution=None) -> Ground:
+    """Step 4: the lines' offsets and geometry (:func:`line_geometry`), the corrected and
+    restored products; ``restitution`` (:class:`imc.wiring.restitution.Restitution`, the
+    record's source) adds the record's predicted error."""
+    t0 = time.perf_counter()
+    plan = rendered.plans["scene"]
+    nsr = 1.0 / max(m.sensor.snr(exposure_s=plan.integration_s), 1.0)
+    offsets, geometry, err = line_geometry(plan, versions, rendered.truth_offset_px, record,
+                                           perfect, true_stage, restitution)
+    products, on_grid, valid, shifts = dict(exposed.images), {}, {}, {}
+    for name in versions.names[1:]:
+        prod, grid, ok, shifts[name] = _correct_version(m, rendered, exposed.images, name,
+                                                        offsets["record"][name], record,
+                                                        versions.stage[name], nsr)
+        products.update(prod)
+        on_grid.update(grid)
+        valid.update(ok)
     return Ground(offsets, geometry, products, on_grid, valid, shifts, err,
                   time.perf_counter() - t0)
+
+
+def truth_offsets(m: Models, plan: ProductPlan, versions: Versions, samples: int) -> dict:
+    """Each moving version's true line offsets (L, 2) px from the camera model alone (no
+    rendering): what :func:`render_versions` records beside its radiance, for the
+    geometry-only product (``product.render: false``)."""
+    from camera.linescan import frame_offset_px, line_offset_px
+
+    cam, imager = m.main_camera, plan.imager
+    smp = imager.sampling(samples)
+    probes = np.unique(np.round(np.linspace(plan.cols[0], plan.cols[-1], 5), 6)).astype(float)
+    out = {}
+    for name in versions.names[1:]:
+        st = versions.stage[name]
+        if imager.scanning:
+            off = line_offset_px(cam, imager, smp, plan.t0_s, np.arange(plan.n_lines), probes,
+                                 m.terrain.height_at, st).mean(axis=1)
+        else:
+            rc = np.column_stack([np.full(len(probes), plan.rows.mean()), probes])
+            off = np.broadcast_to(frame_offset_px(cam, imager, smp, plan.t0_s, rc,
+                                                  m.terrain.height_at, st).mean(axis=0),
+                                  (plan.n_lines, 2)).copy()
+        out[name] = off
+    return out
 
 
 # ------------------------------------------------------------------------------ quality
@@ -624,11 +664,13 @@ def product_dataset(rendered: Rendered, ground: Ground, quality: dict, samples: 
     names = [n for (s, n) in ground.products if s == "scene"]
     moving = list(ground.geometry)
     axis = ["row", "col"]
-    img = np.stack([ground.products["scene", n] for n in names]).astype(np.float32)
-    tgt = np.stack([ground.products["target", n] for n in names]).astype(np.float32)
-    data = {
-        "image": (("version", "line", "col"), img),
-        "target_image": (("version", "target_line", "target_col"), tgt),
+    data = {}
+    if names:  # a geometry-only product has no images
+        data["image"] = (("version", "line", "col"), np.stack(
+            [ground.products["scene", n] for n in names]).astype(np.float32))
+        data["target_image"] = (("version", "target_line", "target_col"), np.stack(
+            [ground.products["target", n] for n in names]).astype(np.float32))
+    data |= {
         "offset_px": (("source", "moving", "line", "axis"), np.array(
             [[ground.offsets[s][n] for n in moving] for s in ("true", "record", "perfect")])
             .reshape(3, len(moving), plan.n_lines, 2)),
@@ -658,18 +700,19 @@ def product_dataset(rendered: Rendered, ground: Ground, quality: dict, samples: 
         data[f"geometry_{fig}"] = (("moving", "stage", "axis"), np.array(
             [[ground.geometry[n][st][fig] for st in GEOMETRY_STAGES] for n in moving])
             .reshape(len(moving), 3, 2))
-    for q in QUALITY_PAIRS:
+    for q in QUALITY_PAIRS if names else ():
         data[q] = (("version", "direction"), np.array(
             [[_nan(x) for x in quality[n][q]] for n in names]))
-    for q in QUALITY_SCALARS:
+    for q in QUALITY_SCALARS if names else ():
         data[q] = (("version",), np.array([_nan(quality[n][q]) for n in names]))
     coords = {"version": names, "moving": moving, "source": ["true", "record", "perfect"],
               "stage": list(GEOMETRY_STAGES), "axis": axis,
               "direction": ["along", "across"], "line_t_s": ("line", plan.line_t_s)}
     blends = {n: ground.geometry[n]["blend"] for n in moving if "blend" in ground.geometry[n]}
-    attrs = {"blend": blends, "kind": plan.kind, "lines": plan.n_lines, "cols": int(len(plan.cols)),
-             "samples": samples, "start_s": plan.t0_s, "integration_s": plan.integration_s,
-             "line_rate_hz": plan.line_rate_hz, "gsd_m": quality["static"]["gsd_m"],
+    attrs = {"blend": blends, "kind": plan.kind, "lines": plan.n_lines,
+             "cols": int(len(plan.cols)), "samples": samples, "start_s": plan.t0_s,
+             "integration_s": plan.integration_s, "line_rate_hz": plan.line_rate_hz,
+             "gsd_m": quality["static"]["gsd_m"] if quality else np.nan,
              "rays": int(rendered.rays), "hit_fraction": float(rendered.hits
                                                                 / max(rendered.rays, 1)),
              "scene_build_s": rendered.build_s, "render_s": rendered.render_s,
@@ -705,6 +748,26 @@ def _chunk_store(out: Path, digest: str, fresh: bool) -> Path:
     return chunks
 
 
+def geometry_study(m: Models, res, plan: ProductPlan, samples: int, restitution=None
+                   ) -> xr.Dataset:
+    """The geometry-only product (``product.render: false``): the lines' offsets and the
+    geometry from the record against the camera model's truth, no image rendered (for
+    trade studies over long strips)."""
+    t0 = time.perf_counter()
+    stage = res.trajectory if m.scenario.compensation.enabled else None
+    versions = Versions.of_run(stage)
+    truth = truth_offsets(m, plan, versions, samples)
+    record = restitution.record if restitution is not None else record_jitter(m, res)
+    offsets, geometry, err = line_geometry(plan, versions, truth, record,
+                                           perfect_jitter(m, record), stage, restitution)
+    ground = Ground(offsets, geometry, {}, {}, {}, {n: np.zeros(2) for n in geometry}, err,
+                    time.perf_counter() - t0)
+    rendered = Rendered({"scene": plan}, {}, truth, 0, 0, 0.0, 0.0)
+    ds = product_dataset(rendered, ground, {}, samples)
+    ds.attrs["transform"], ds.attrs["crs"] = georeference(m, plan)
+    return ds
+
+
 def run_study(m: Models, res, plan: ProductPlan, samples: int, store: Path,
               restitution=None) -> tuple[xr.Dataset, Rendered]:
     """Steps 2-5 on one plan: (the labelled result, the renders); the record is
@@ -731,6 +794,8 @@ def product_study(m: Models, res, out: Path, fresh: bool = False, restitution=No
     Returns the labelled result (:func:`product_dataset`) and the renders;
     :func:`imc.outputs.product_files.write_product` writes them."""
     plan = plan_product(m)
+    if not m.scenario.product.render:
+        return geometry_study(m, res, plan, m.scenario.product.samples, restitution), None
     return run_study(m, res, plan, m.scenario.product.samples,
                      _chunk_store(out, m.scenario.digest(), fresh), restitution)
 

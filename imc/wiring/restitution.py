@@ -48,13 +48,13 @@ class Restitution:
         return self.solution.at(np.asarray(t_s, dtype=np.float64))[1]
 
     def stage_correction(self, stage) -> tuple[MotionRecord, dict]:
-        """What the ground applies to a stage's product (stage + ground never worse than the
-        stage alone): the record's estimate of the stage's residual (the record less the
-        stage's position record, at the tracker frames), blended per axis and per frequency
-        band by what the record knows better than the residual is large
+        """What the ground leaves out of its correction of a stage's product (stage + ground
+        never worse than the stage alone): the record's estimate of the stage's residual (the
+        record less the stage's position record, at the tracker frames) is blended per axis
+        and per frequency band by what the record knows better than the residual is large
         (:func:`ground.blend.blend_correction`, Wiener gains from the predicted errors).
-        Returns the correction as a record of the residual to remove (px) and the blend's
-        predicted figures."""
+        Returns the part not applied (the estimate less the blended correction) as a record
+        (px) and the blend's predicted figures."""
         from ground.blend import blend_correction
 
         t = self.record.t_s
@@ -65,11 +65,12 @@ class Restitution:
         lo = min(2.0 / max(span, dt), top / 2)
         crossover = np.geomspace(lo, top, max(2, int(np.log2(top / lo)) + 1))
         blend = blend_correction([x], [self.solution.cov_px2], dt, crossover)
+        left_out = x - x.mean(axis=0) - blend.correction_px
         figures = {"crossover_hz": [float(f) for f in crossover],
                    "gain": blend.gain.tolist(),
                    "predicted_before_px": [float(v) for v in blend.predicted_before_px],
                    "predicted_after_px": [float(v) for v in blend.predicted_after_px]}
-        return MotionRecord(t, blend.correction_px, np.ones(len(t), bool)), figures
+        return MotionRecord(t, left_out, np.ones(len(t), bool)), figures
 
     def predicted_geometry(self, t_s: np.ndarray, max_samples: int = 512) -> dict:
         """The record's predicted geometry error over lines at times t_s, s, per axis: RMS

@@ -34,7 +34,7 @@ from orbit.sun import sun_elevation_azimuth_deg
 from orbit.suspension import Suspension
 from orbit.tle import TleOrbit
 from scene.classes import CloudLayer, cloud_cell_m, cloud_layer, scene_class
-from scene.geotiff import GeoTiffError, terrain_from_geotiff
+from scene.geotiff import GeoTiffError, nodata_in_view, terrain_from_geotiff
 from scene.terrain import Terrain, flat_terrain
 
 
@@ -238,7 +238,8 @@ def build_scene(sc: Scenario, light: bool = False
         try:
             terrain, file_centre = terrain_from_geotiff(g.ortho, g.dem, s.dem_spacing_m,
                                                         g.albedo_scale,
-                                                        max_side=2048 if light else None)
+                                                        max_side=2048 if light else None,
+                                                        band=g.band)
         except GeoTiffError as e:
             raise ScenarioError(str(e)) from None
         centre = file_centre or centre
@@ -425,6 +426,9 @@ def _check_coverage(m: Models) -> None:
     times = np.sort(np.concatenate([times[:: max(1, len(times) // 64)], times[-1:]]))
     times = times[np.r_[True, np.diff(times) > 0]]  # unique (np.unique imports numpy.ma)
     pts = m.camera.ground_points(corners, times, m.terrain.height_at)
+    holes = nodata_in_view(m.terrain, pts[:, [0, 1, 3, 2], :2])  # user files' nodata
+    if holes:
+        raise ScenarioError(holes)
     inside = m.terrain.contains(pts[..., 0], pts[..., 1], margin_m=4.0 * m.terrain.dem_spacing_m)
     if not np.all(inside):
         need = 2.0 * float(np.max(np.abs(pts[..., :2]))) + 8.0 * m.terrain.dem_spacing_m

@@ -218,6 +218,12 @@ def test_oem_orbit_matches_the_orbit_it_was_written_from(tmp_path):
     assert np.abs(r1 - r2).max() < 1e-3 and np.abs(v1 - v2).max() < 1e-3
     with pytest.raises(ValueError, match="has states for t = -60 .. 120 s only"):
         got.state_eci(200.0)
+    # the same states Earth-fixed (REF_FRAME ITRF): turned back through GMST
+    r_e, v_e = o.state_ecef(t)
+    text = oem_text(EPOCH, t, r_e, v_e).replace("REF_FRAME = EME2000", "REF_FRAME = ITRF")
+    (tmp_path / "e.oem").write_text(text)
+    r3, v3 = read_oem(tmp_path / "e.oem", EPOCH).state_eci(tt)
+    assert np.abs(r1 - r3).max() < 1e-3 and np.abs(v1 - v3).max() < 1e-3
 
 
 def test_the_bundled_measured_scenario_builds_and_its_files_agree():

@@ -49,9 +49,11 @@ EPOCH_MAX = datetime(2262, 4, 10)
 
 def _finite_magnitude(v):
     """v, if every float in it (a number or a tuple of numbers) is at most MAX_MAGNITUDE."""
-    for x in v if isinstance(v, tuple | list) else (v,):
+    many = isinstance(v, tuple | list)
+    for i, x in enumerate(v if many else (v,)):
         if isinstance(x, float) and not abs(x) <= MAX_MAGNITUDE:
-            raise ValueError(f"must be a finite number of magnitude <= {MAX_MAGNITUDE:g}")
+            where = f"@{i}@ " if many else ""  # the element, named in the error's field
+            raise ValueError(f"{where}must be a finite number of magnitude <= {MAX_MAGNITUDE:g}")
     return v
 
 

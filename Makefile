@@ -4,10 +4,15 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.imcsim-installed
 
-.PHONY: setup demo test lint bench bench-table2 bench-optical bench-loop bench-sweep bench-flight bench-texture-map bench-product bench-strip check-scenarios clean
+.PHONY: setup data demo test lint bench bench-table2 bench-optical bench-loop bench-sweep bench-flight bench-texture-map bench-product bench-strip check-scenarios clean
 
-setup: $(STAMP)
+setup: $(STAMP) data
 	@sh scripts/ensure-llvm.sh
+
+# user data the bundled scenarios read: the Olinda case (scenarios/olinda.yaml) from Debian's
+# r-cran-stars package (apt-get download; no R needed); without apt-get: a one-line skip
+data:
+	@sh scripts/fetch-olinda.sh scenarios/data/olinda
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)

@@ -50,9 +50,11 @@ EPOCH_MAX = datetime(2262, 4, 10)
 
 def _finite_magnitude(v):
     """v, if every float in it (a number or a tuple of numbers) is at most MAX_MAGNITUDE."""
-    for x in v if isinstance(v, tuple | list) else (v,):
+    many = isinstance(v, tuple | list)
+    for i, x in enumerate(v if many else (v,)):
         if isinstance(x, float) and not abs(x) <= MAX_MAGNITUDE:
-            raise ValueError(f"must be a finite number of magnitude <= {MAX_MAGNITUDE:g}")
+            where = f"@{i}@ " if many else ""  # the element, named in the error's field
+            raise ValueError(f"{where}must be a finite number of magnitude <= {MAX_MAGNITUDE:g}")
     return v
 
 
@@ -119,17 +121,31 @@ _EPOCH_RANGE = (f"must lie between {EPOCH_MIN:%Y-%m-%d} and {EPOCH_MAX:%Y-%m-%d}
                 "range imcsim's orbit and sun models can propagate")
 
 
+def _usable_file(v: Path | None, what: str = "file") -> Path | None:
+    """A path the schema accepts (not empty, no NUL, at most 4096 characters)."""
+    if v is None:
+        return v
+    text = str(v)
+    if "\x00" in text or not text.strip() or text == ".":
+        raise ValueError(f"give the path of a {what}")
+    if len(text) > 4096:
+        raise ValueError(f"path of {len(text)} characters; the system takes at most 4096")
+    return v
+
+
 class OrbitConfig(_Model):
     """The platform's path. ``circular`` and ``sun_synchronous`` orbits are placed so that the
     line of sight (attitude.roll_deg / pitch_deg) meets the scene centre at t = 0 (mode
-    target) or half-way through the run (scanning modes); ``elements`` and
-    ``tle`` orbits are taken as given and need attitude.mode 'target'. ``aircraft``: straight,
+    target) or half-way through the run (scanning modes); ``elements``,
+    ``tle`` and ``oem`` (a CCSDS orbit ephemeris file) orbits are taken as given and need
+    attitude.mode 'target'. ``aircraft``: straight,
     level flight height_m above the scene's ground at ground_speed_mps along heading_deg,
     over the scene centre half-way through the run (attitude.mode nadir or off_nadir)."""
 
-    kind: Literal["sun_synchronous", "circular", "elements", "tle", "aircraft"] = Field(
+    kind: Literal["sun_synchronous", "circular", "elements", "tle", "oem", "aircraft"] = Field(
         "sun_synchronous", description="sun_synchronous (inclination from the altitude), "
-        "circular, elements (Keplerian), tle (SGP4) or aircraft (straight, level flight)")
+        "circular, elements (Keplerian), tle (SGP4), oem (a CCSDS orbit ephemeris file) or "
+        "aircraft (straight, level flight)")
     altitude_m: float = Field(681_000.0, gt=150_000.0, lt=50_000_000.0,
                               description="circular / sun_synchronous: altitude above the "
                               "WGS84 equatorial radius, m")
@@ -150,6 +166,8 @@ class OrbitConfig(_Model):
     mean_anomaly_deg: _AngleDeg = Field(0.0, description="elements: mean anomaly at epoch, deg")
     tle_line1: str | None = Field(None, max_length=80, description="tle: line 1")
     tle_line2: str | None = Field(None, max_length=80, description="tle: line 2")
+    oem_file: Path | None = Field(None, description="oem: CCSDS OEM file (KVN or XML; path "
+                                  "relative to the scenario file) whose states span the run")
     height_m: float | None = Field(None, gt=0.0, le=30_000.0, description="aircraft: flight "
                                    "height above the scene's ground level (the DEM's median), m")
     ground_speed_mps: float | None = Field(None, gt=0.0, le=1000.0,
@@ -173,7 +191,15 @@ class OrbitConfig(_Model):
             raise ValueError("kind 'elements' needs semi_major_axis_m (m)")
         if self.kind == "tle" and not (self.tle_line1 and self.tle_line2):
             raise ValueError("kind 'tle' needs tle_line1 and tle_line2")
+        if (self.kind == "oem") != (self.oem_file is not None):
+            raise ValueError("kind 'oem' needs oem_file (a CCSDS OEM), and oem_file needs kind "
+                             "'oem'")
         return self
+
+    @field_validator("oem_file", mode="after")
+    @classmethod
+    def _oem_path(cls, v: Path | None) -> Path | None:
+        return _usable_file(v, "CCSDS OEM file")
 
     @model_validator(mode="after")
     def _aircraft_fields(self) -> OrbitConfig:
@@ -252,6 +278,33 @@ class WheelConfig(_Model):
                                                   description="harmonics at speed_hz")
 
 
+class JitterSeriesConfig(_Model):
+    """Measured attitude as the true jitter (orbit.attitude_series): a CSV of time (t_s: s
+    since orbit.epoch_utc, or utc) and roll_<unit>, pitch_<unit>, yaw_<unit> offsets (unit:
+    rad, mrad, urad, deg, arcsec or px), or a CCSDS AEM (EME2000 <-> body quaternions) whose
+    jitter is taken against the nominal pointing of attitude.mode. Cubic-spline interpolated;
+    the samples must cover the run at the tracker's frame rate or faster."""
+
+    file: Path = Field(description="CSV or CCSDS AEM file (path relative to the scenario file)")
+    format: Literal["csv", "aem"] | None = Field(None, description="csv or aem (none: from "
+                                                 "the file's suffix, .csv or .aem)")
+
+    @field_validator("file", mode="after")
+    @classmethod
+    def _path(cls, v: Path) -> Path:
+        return _usable_file(v, "CSV or CCSDS AEM file")
+
+    @model_validator(mode="after")
+    def _format(self) -> JitterSeriesConfig:
+        if self.format is None:
+            suffix = self.file.suffix.lower()
+            if suffix not in (".csv", ".aem"):
+                raise ValueError(f"cannot tell the format from the suffix {suffix or '(none)'}"
+                                 " of file: set format (csv or aem)")
+            object.__setattr__(self, "format", suffix[1:])
+        return self
+
+
 class JitterProfileConfig(_Model):
     """Attitude jitter: lists of sinusoidal, random (PSD) and reaction-wheel terms. Lists left
     out are empty. Leaving out the whole section gives the default profile (DEFAULT_JITTER):
@@ -261,6 +314,16 @@ class JitterProfileConfig(_Model):
     sinusoids: tuple[SinusoidConfig, ...] = Field((), description="sinusoidal terms")
     random: tuple[RandomJitterConfig, ...] = Field((), description="random (PSD) terms")
     wheels: tuple[WheelConfig, ...] = Field((), description="reaction-wheel harmonic series")
+    series: JitterSeriesConfig | None = Field(None, description="measured attitude (a CSV or "
+                                              "a CCSDS AEM) as the jitter, instead of the "
+                                              "modelled terms")
+
+    @model_validator(mode="after")
+    def _series_alone(self) -> JitterProfileConfig:
+        if self.series is not None and (self.sinusoids or self.random or self.wheels):
+            raise ValueError("series is the measured jitter: leave out sinusoids, random and "
+                             "wheels (or drop series)")
+        return self
 
 
 #: An IKONOS-class default from measured missions: ZY-3's dominant 0.65 Hz at 1 px
@@ -314,6 +377,9 @@ class AttitudeConfig(_Model):
                              "roll_deg / pitch_deg")
         if self.mode == "target" and self.yaw_steering:
             raise ValueError("yaw_steering needs a scanning mode (nadir or off_nadir)")
+        if self.jitter.series is not None and self.suspension is not None:
+            raise ValueError("suspension filters modelled jitter; a measured jitter.series is "
+                             "taken as the camera's motion: drop suspension")
         return self
 
 
@@ -338,6 +404,8 @@ class GeoTiffConfig(_Model):
                              "(none: flat)")
     albedo_scale: float | None = Field(None, gt=0.0, description="albedo per pixel value "
                                        "(default: 1 / dtype max for integers, 1 for floats)")
+    band: int | None = Field(None, ge=1, le=65535, description="the orthophoto's band to "
+                             "use, 1-based (none: the bands averaged, alpha left out)")
 
     @field_validator("ortho", "dem", mode="after")
     @classmethod
@@ -948,7 +1016,7 @@ class Scenario(_Model):
     @model_validator(mode="after")
     def _cross(self) -> Scenario:
         t = self.camera.tracker
-        if self.orbit.kind in ("elements", "tle") and self.attitude.mode != "target":
+        if self.orbit.kind in ("elements", "tle", "oem") and self.attitude.mode != "target":
             raise ValueError(f"orbit.kind '{self.orbit.kind}' is not placed over the scene: "
                              "use attitude.mode 'target' (stare at the scene centre)")
         if IMAGERS[self.camera.main_imager.kind].scanning and self.attitude.mode == "target":
@@ -1076,4 +1144,19 @@ def load_scenario(path: str | Path) -> Scenario:
             "ortho": g.ortho if g.ortho.is_absolute() else p.parent / g.ortho,
             "dem": g.dem if g.dem is None or g.dem.is_absolute() else p.parent / g.dem})
         sc = sc.model_copy(update={"scene": sc.scene.model_copy(update={"geotiff": g})})
+    return _files_next_to(sc, p.parent)
+
+
+def _files_next_to(sc: Scenario, folder: Path) -> Scenario:
+    """The scenario with its measured-input files (attitude.jitter.series.file,
+    orbit.oem_file) taken relative to ``folder`` unless absolute."""
+    s = sc.attitude.jitter.series
+    if s is not None and not s.file.is_absolute():
+        jit = sc.attitude.jitter.model_copy(update={
+            "series": s.model_copy(update={"file": folder / s.file})})
+        sc = sc.model_copy(update={"attitude": sc.attitude.model_copy(update={"jitter": jit})})
+    o = sc.orbit
+    if o.oem_file is not None and not o.oem_file.is_absolute():
+        sc = sc.model_copy(update={"orbit": o.model_copy(update={"oem_file":
+                                                                 folder / o.oem_file})})
     return sc

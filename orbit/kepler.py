@@ -41,6 +41,12 @@ class EarthOrbit:
     def state_eci(self, t_s: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         raise NotImplementedError
 
+    @property
+    def span_s(self) -> tuple[float, float]:
+        """The times (s since epoch_utc) the model can be evaluated at: everywhere for a
+        propagator, an ephemeris' states' span for one (orbit.oem_orbit)."""
+        return (-np.inf, np.inf)
+
     def state_ecef(self, t_s: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         """Position (m) and Earth-relative velocity (m/s) in ECEF, (..., 3) each."""
         t = np.asarray(t_s, dtype=np.float64)

@@ -1,7 +1,7 @@
 """User terrain from GeoTIFFs: an orthophoto (albedo) and an optional DEM, in any CRS.
 
 Files are read with rasterio (GDAL): tiled or striped, compressed, any real dtype, several
-bands (averaged; an alpha band and nodata become holes), internal masks, overviews (a
+bands (one picked, or averaged; an alpha band and nodata become holes), internal masks, overviews (a
 decimated read for ``imc validate``). They are placed with pyproj: any CRS with an EPSG
 code or a WKT definition (projected or geographic, any datum PROJ can relate to WGS84).
 
@@ -16,7 +16,10 @@ along north, one texel size) is within 0.01 px of the exact one over the whole i
 pixels are used as they are; otherwise the image is resampled (bilinear) onto a north-up
 ENU grid of square texels with the pixel's ground area, inside the image's footprint. The
 DEM (any CRS, any pixel size) is sampled bilinearly at the tile's DEM nodes the same way; it
-must cover the orthophoto and have no holes there. The tile is a plane tangent at the centre
+must cover the orthophoto: up to one DEM pixel short is edge-extended with a note (real DEMs
+and orthos routinely differ by a pixel at their edges), more is refused. Holes (nodata) in
+either file are filled, masked on the terrain and noted; the run refuses them where the
+tracker looks (:func:`nodata_in_view`). The tile is a plane tangent at the centre
 (Earth curvature, 8 cm at 1 km, is not modelled; neither are vertical datums: DEM values
 are heights in m).
 
@@ -143,9 +146,10 @@ def raster_shape(path, what: str = "scene.geotiff.ortho") -> tuple[int, int]:
         return int(ds.height), int(ds.width)
 
 
-def read_geotiff(path: str | Path, what: str = "GeoTIFF", max_side: int | None = None
-                 ) -> GeoRaster:
-    """One band of a GeoTIFF (bands averaged, alpha and nodata as NaN) and its georeference.
+def read_geotiff(path: str | Path, what: str = "GeoTIFF", max_side: int | None = None,
+                 band: int | None = None) -> GeoRaster:
+    """One band of a GeoTIFF (``band``, 1-based, or the bands averaged; alpha and nodata as
+    NaN) and its georeference.
 
     ``max_side``: read a decimated image (from the overviews where the file has them) with
     at most this many pixels a side.
@@ -163,6 +167,12 @@ def read_geotiff(path: str | Path, what: str = "GeoTIFF", max_side: int | None =
                                "convert it (gdal_translate -ot Float32)")
         alpha = [i + 1 for i, c in enumerate(ds.colorinterp) if c == ColorInterp.alpha]
         bands = [b for b in range(1, ds.count + 1) if b not in alpha] or [1]
+        if band is not None:
+            if not 1 <= band <= ds.count:
+                raise GeoTiffError(f"scene.geotiff.band: {band}, but {what} {name} has "
+                                   f"{ds.count} band{'s' if ds.count > 1 else ''}; pick one "
+                                   f"of 1..{ds.count}")
+            bands = [band]
         h, w = ds.height, ds.width
         f = 1
         if max_side is not None and max(h, w) > max_side:
@@ -274,14 +284,6 @@ def _centre(raster: GeoRaster, row: float, col: float, what: str) -> tuple[float
     return float(lat), float(((lon + 180.0) % 360.0) - 180.0)
 
 
-def _holes(data: np.ndarray, row0: int = 0, col0: int = 0) -> str | None:
-    bad = ~np.isfinite(data)
-    if not bad.any():
-        return None
-    r, c = np.argwhere(bad)[0]
-    return f"{int(bad.sum())} NaN / nodata pixels (first at row {r + row0}, col {c + col0})"
-
-
 @dataclass(frozen=True)
 class GeoTerrain:
     """A placed GeoTIFF tile: the terrain, its centre (lat, lon) deg, whether the pixels were
@@ -298,17 +300,24 @@ class GeoTerrain:
 
 
 def place_geotiff(ortho_path: str | Path, dem_path: str | Path | None, dem_spacing_m: float,
-                  albedo_scale: float | None = None, max_side: int | None = None
-                  ) -> GeoTerrain:
+                  albedo_scale: float | None = None, max_side: int | None = None,
+                  band: int | None = None) -> GeoTerrain:
     """Terrain from an orthophoto and an optional DEM, placed by pyproj (module docstring).
 
     The tile is cropped (centred) to a whole number of DEM cells of ``dem_spacing_m``
     (rounded to whole texels). ``albedo_scale`` multiplies the pixel values (default: 1 for
     float images, 1 / the dtype's maximum for integer images); the result is clipped to
-    [0, 1]. ``max_side``: read the orthophoto decimated to at most this many pixels a side.
+    [0, 1]. ``max_side``: read the orthophoto decimated to at most this many pixels a side;
+    ``band``: the orthophoto's band (1-based; None: the bands averaged).
+
+    Nodata (and alpha) pixels of the orthophoto are filled with the image's mean and nodata
+    DEM pixels with their nearest valid neighbour; both are masked on the terrain
+    (``Terrain.nodata_albedo``, ``nodata_dem``) and reported in ``Terrain.notes``, so the run
+    can refuse them where the tracker looks (:func:`nodata_in_view`). A DEM up to one DEM
+    pixel short of the orthophoto is edge-extended, with a note.
     """
     what = "scene.geotiff.ortho"
-    ortho = read_geotiff(ortho_path, what, max_side)
+    ortho = read_geotiff(ortho_path, what, max_side, band)
     h, w = ortho.shape
     if h < 16 or w < 16:
         raise GeoTiffError(f"{what} {ortho.path}: {h} x {w} px is too small (16 x 16 at least)")
@@ -336,10 +345,18 @@ def place_geotiff(ortho_path: str | Path, dem_path: str | Path | None, dem_spaci
         if (h - nh) % 2 or (w - nw) % 2:  # the crop's centre is the ENU origin
             lat0, lon0 = _centre(ortho, r0 + (nh - 1) / 2.0, c0 + (nw - 1) / 2.0, what)
             place = Placement(ortho, lat0, lon0, what)
-    where = _holes(albedo)
-    if where:
-        raise GeoTiffError(f"{what} {ortho.path}: {where}; fill them (gdal_fillnodata.py) or "
-                           "crop the image")
+    notes: list[str] = []
+    holes = ~np.isfinite(albedo)
+    nodata_albedo = None
+    if holes.all():
+        raise GeoTiffError(f"{what} {ortho.path}: every pixel of the tile is nodata; check its "
+                           "nodata value or pick another scene.geotiff.band")
+    if holes.any():
+        albedo = np.where(holes, float(np.mean(albedo[~holes])), albedo)
+        nodata_albedo = holes
+        notes.append(f"{what} {ortho.path}: {int(holes.sum())} nodata texels "
+                     f"({holes.mean():.2%} of the tile) masked and filled with the image's mean"
+                     " (outside the tracker's view)")
     if albedo_scale is None:
         raw = np.dtype(ortho.dtype)
         albedo_scale = 1.0 / np.iinfo(raw).max if raw.kind in "ui" else 1.0
@@ -349,13 +366,15 @@ def place_geotiff(ortho_path: str | Path, dem_path: str | Path | None, dem_spaci
                            "scene.geotiff.albedo_scale")
     spacing = step * texel_m
     my, mx = nh // step + 1, nw // step + 1
+    nodata_dem = None
     if dem_path is None:
         dem_m = np.zeros((my, mx), np.float32)
     else:
         east = (np.arange(mx) * step - nw / 2.0) * texel_m
         north = (nh / 2.0 - np.arange(my) * step) * texel_m
-        dem_m = _dem_at(dem_path, place, east, north)
-    terrain = Terrain(albedo, texel_m, dem_m, spacing)
+        dem_m, nodata_dem, dem_notes = _dem_at(dem_path, place, east, north)
+        notes += dem_notes
+    terrain = Terrain(albedo, texel_m, dem_m, spacing, nodata_albedo, nodata_dem, tuple(notes))
     return GeoTerrain(terrain, (place.frame.lat_deg, place.frame.lon_deg), resample,
                       place.factors(), place, float("nan") if resample else float(r0),
                       float("nan") if resample else float(c0))
@@ -408,8 +427,23 @@ def _resampled(ortho: GeoRaster, place: Placement, texel_m: float, step: int,
     return albedo, nh, nw, 0, 0
 
 
-def _dem_at(dem_path, place: Placement, east: np.ndarray, north: np.ndarray) -> np.ndarray:
-    """DEM heights (len(north), len(east)) m at ENU nodes, bilinear, any CRS."""
+def _edges(dem: GeoRaster, over: dict[str, float]) -> str:
+    """The DEM's edges named by compass direction for a north-up file, else by row / column."""
+    a, b, _, d, e, _ = tuple(dem.transform)[:6]
+    north_up = b == 0 and d == 0 and a > 0 and e < 0
+    names = ({"first_row": "north", "last_row": "south", "first_col": "west", "last_col": "east"}
+             if north_up else {"first_row": "first-row", "last_row": "last-row",
+                               "first_col": "first-column", "last_col": "last-column"})
+    return " and ".join(names[k] for k in over)
+
+
+def _dem_at(dem_path, place: Placement, east: np.ndarray, north: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray | None, list[str]]:
+    """DEM heights (len(north), len(east)) m at ENU nodes, bilinear, any CRS; the nodes that
+    drew on nodata DEM pixels (None: none) and the notes on how the DEM was taken.
+
+    A DEM up to one DEM pixel short of the nodes is edge-extended (its outer pixels repeated);
+    shorter: GeoTiffError. Nodata pixels are filled from their nearest valid neighbour."""
     from scipy import ndimage
 
     what = "scene.geotiff.dem"
@@ -417,33 +451,96 @@ def _dem_at(dem_path, place: Placement, east: np.ndarray, north: np.ndarray) -> 
     dplace = Placement(dem, place.frame.lat_deg, place.frame.lon_deg, what)
     rr, cc = dplace.pixel_of_enu(east[None, :], north[:, None])
     dh, dw = dem.shape
-    tol = 0.5 + 1e-6
-    if rr.min() < -tol or cc.min() < -tol or rr.max() > dh - 1 + tol or cc.max() > dw - 1 + tol:
+    # how far (DEM px) the nodes reach past each outer edge of the DEM (its pixels' edges)
+    over = {"first_row": -0.5 - float(rr.min()), "last_row": float(rr.max()) - (dh - 0.5),
+            "first_col": -0.5 - float(cc.min()), "last_col": float(cc.max()) - (dw - 0.5)}
+    over = {k: v for k, v in over.items() if v > 1e-6}
+    notes = []
+    if over and max(over.values()) > 1.0 + 1e-6:
         x0, y0 = dem.map_of(np.array([-0.5, dh - 0.5]), np.array([-0.5, dw - 0.5]))
         xs, ys = dem.map_of(np.array([rr.min(), rr.max()]), np.array([cc.min(), cc.max()]))
         raise GeoTiffError(
             f"{what} {dem.path}: its extent x {min(x0):.6g}..{max(x0):.6g}, y "
             f"{min(y0):.6g}..{max(y0):.6g} does not cover the orthophoto's x {min(xs):.6g}.."
-            f"{max(xs):.6g}, y {min(ys):.6g}..{max(ys):.6g} (in the DEM's CRS); use a DEM that "
+            f"{max(xs):.6g}, y {min(ys):.6g}..{max(ys):.6g} (in the DEM's CRS; "
+            f"{max(over.values()):.3g} DEM px short, one is edge-extended); use a DEM that "
             "covers it")
+    if over:
+        jac = dplace.jacobian((dh - 1) / 2.0, (dw - 1) / 2.0)
+        px_m = {"row": float(np.hypot(*jac[:, 1])), "col": float(np.hypot(*jac[:, 0]))}
+        short_m = max(v * px_m["row" if "row" in k else "col"] for k, v in over.items())
+        notes.append(f"{what} {dem.path}: stops up to {short_m:.0f} m "
+                     f"({max(over.values()):.2f} DEM px) short of the orthophoto at its "
+                     f"{_edges(dem, over)} edge; edge-extended (its outer pixels repeated)")
     rr, cc = np.clip(rr, 0, dh - 1), np.clip(cc, 0, dw - 1)
     r_lo, r_hi = int(np.floor(rr.min())), int(np.ceil(rr.max())) + 1
     c_lo, c_hi = int(np.floor(cc.min())), int(np.ceil(cc.max())) + 1
-    where = _holes(dem.data[r_lo:r_hi, c_lo:c_hi], r_lo, c_lo)
-    if where:
-        raise GeoTiffError(f"{what} {dem.path}: {where} under the orthophoto; fill them "
-                           "(gdal_fillnodata.py)")
-    z = ndimage.map_coordinates(dem.data, [rr, cc], order=1, mode="nearest")
-    return z.astype(np.float32)
+    data = dem.data
+    holes = ~np.isfinite(data)
+    nodes = None
+    if holes[r_lo:r_hi, c_lo:c_hi].any():
+        if holes[r_lo:r_hi, c_lo:c_hi].all():
+            raise GeoTiffError(f"{what} {dem.path}: every DEM pixel under the orthophoto is "
+                               "nodata; check its nodata value")
+        idx = ndimage.distance_transform_edt(holes, return_distances=False,
+                                             return_indices=True)
+        data = data[tuple(idx)]
+        touched = ndimage.map_coordinates(holes.astype(np.float64), [rr, cc], order=1,
+                                          mode="nearest") > 0.0
+        if touched.any():
+            nodes = touched
+            notes.append(f"{what} {dem.path}: {int(touched.sum())} DEM nodes of the tile "
+                         f"({touched.mean():.2%}) drew on nodata pixels; masked and filled "
+                         "from the nearest valid pixel (outside the tracker's view)")
+    z = ndimage.map_coordinates(data, [rr, cc], order=1, mode="nearest")
+    return z.astype(np.float32), nodes, notes
+
+
+def nodata_in_view(terrain: Terrain, quads_en_m: np.ndarray) -> str | None:
+    """A one-line refusal if any masked (nodata) texel or DEM node of ``terrain`` lies inside
+    one of the ground quadrilaterals ``quads_en_m`` (T, 4, 2) (ENU east, north; corners in
+    order around), else None."""
+    w, h = terrain.size_m
+    pts, kinds = [], []
+    if terrain.nodata_albedo is not None:
+        i, j = np.nonzero(terrain.nodata_albedo)
+        pts.append(np.stack([(j + 0.5) * terrain.texel_m - w / 2.0,
+                             h / 2.0 - (i + 0.5) * terrain.texel_m], axis=-1))
+        kinds.append(np.zeros(len(i), int))
+    if terrain.nodata_dem is not None:
+        i, j = np.nonzero(terrain.nodata_dem)
+        pts.append(np.stack([j * terrain.dem_spacing_m - w / 2.0,
+                             h / 2.0 - i * terrain.dem_spacing_m], axis=-1))
+        kinds.append(np.ones(len(i), int))
+    if not pts:
+        return None
+    p, kind = np.concatenate(pts), np.concatenate(kinds)
+    q = np.asarray(quads_en_m, np.float64)
+    inside = np.zeros(len(p), bool)
+    for quad in q:
+        edge = np.roll(quad, -1, axis=0) - quad  # (4, 2)
+        rel = p[:, None, :] - quad[None]  # (P, 4, 2)
+        cross = edge[None, :, 0] * rel[..., 1] - edge[None, :, 1] * rel[..., 0]
+        inside |= np.all(cross >= 0, axis=1) | np.all(cross <= 0, axis=1)
+    if not inside.any():
+        return None
+    n_t, n_d = int(np.sum(inside & (kind == 0))), int(np.sum(inside & (kind == 1)))
+    near = p[inside][np.argmin(np.hypot(*p[inside].T))]
+    what = " and ".join(x for x in (f"{n_t} nodata texels of scene.geotiff.ortho" if n_t else "",
+                                    f"{n_d} nodata DEM nodes of scene.geotiff.dem" if n_d
+                                    else "") if x)
+    return (f"scene.geotiff: {what} lie where the tracker looks during the run (the nearest "
+            f"{near[0]:.0f} m east, {near[1]:.0f} m north of the scene centre); fill them "
+            "(gdal_fillnodata.py) or use files without holes there")
 
 
 def terrain_from_geotiff(ortho_path: str | Path, dem_path: str | Path | None,
                          dem_spacing_m: float, albedo_scale: float | None = None,
-                         max_side: int | None = None
+                         max_side: int | None = None, band: int | None = None
                          ) -> tuple[Terrain, tuple[float, float]]:
     """Terrain and its centre (lat, lon) deg from an orthophoto and an optional DEM (see
     :func:`place_geotiff`)."""
-    g = place_geotiff(ortho_path, dem_path, dem_spacing_m, albedo_scale, max_side)
+    g = place_geotiff(ortho_path, dem_path, dem_spacing_m, albedo_scale, max_side, band)
     return g.terrain, g.centre
 
 

@@ -20,6 +20,12 @@ class Terrain:
     texel_m: float
     dem_m: np.ndarray
     dem_spacing_m: float
+    #: texels (albedo's shape) and DEM nodes (dem_m's shape) that were nodata in the user's
+    #: files and are filled (scene.geotiff); None: none
+    nodata_albedo: np.ndarray | None = None
+    nodata_dem: np.ndarray | None = None
+    #: one-line notes on how the files were taken (a DEM edge-extended, nodata filled)
+    notes: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.albedo.ndim != 2 or self.dem_m.ndim != 2:
@@ -35,6 +41,10 @@ class Terrain:
                 f"DEM node grid {self.dem_m.shape} x {self.dem_spacing_m} m does not span the "
                 f"albedo tile {w} x {h} m"
             )
+        for mask, ref, name in ((self.nodata_albedo, self.albedo, "nodata_albedo"),
+                                (self.nodata_dem, self.dem_m, "nodata_dem")):
+            if mask is not None and mask.shape != ref.shape:
+                raise ValueError(f"{name} {mask.shape} must have the shape {ref.shape}")
 
     @property
     def size_m(self) -> tuple[float, float]:

@@ -233,9 +233,13 @@ def _world_data(m: Models) -> dict:
     """What the 3-D view shows (ENU m), as arrays."""
     cam, hfn = m.camera, m.terrain.height_at
     end = float(m.frame_t_s[-1] + m.exposure_s)
-    arc_t = np.linspace(-ARC_S, end + ARC_S, 241)
+    lo, hi = getattr(cam.orbit, "span_s", (-np.inf, np.inf))  # an ephemeris: its states
+    arc_t = np.linspace(max(-ARC_S, lo), min(end + ARC_S, hi), 241)
     times = np.linspace(0.0, end, min(MAX_POSES, len(m.frame_t_s) + 1))
+    label = (f"orbit, +-{ARC_S:g} s" if arc_t[0] == -ARC_S and arc_t[-1] == end + ARC_S
+             else f"orbit, {arc_t[0]:g} .. {arc_t[-1]:g} s (the ephemeris' span)")
     return {"terrain": _terrain_mesh(m), "orbit_m": cam.pose(arc_t).position_m,
+            "orbit_label": label,
             "times_s": times, "satellite_m": cam.pose(times).position_m,
             "ground_m": _ground_points(cam, cam.focal_plane.center_px[None], times, hfn)[:, 0],
             "footprint_tracker_m": _footprint(cam, times, hfn),
@@ -245,8 +249,9 @@ def _world_data(m: Models) -> dict:
 def _log_world(rec, rr, d: dict) -> None:
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)  # ENU
     rec.log("world/terrain", rr.Mesh3D(**d["terrain"]), static=True)
+    label = d.get("orbit_label", f"orbit, +-{ARC_S:g} s")
     rec.log("world/orbit", rr.LineStrips3D([d["orbit_m"]], colors=[(200, 200, 255)],
-                                           labels=[f"orbit, +-{ARC_S:g} s"]), static=True)
+                                           labels=[label]), static=True)
     pos = d["satellite_m"]
     # each path's style once (static), its geometry per time step as one column
     tcol = rr.TimeColumn("time", duration=d["times_s"])

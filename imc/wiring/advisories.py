@@ -68,6 +68,7 @@ def advisories(m: Models, parts: LoopParts) -> tuple[dict, list[str]]:
     lock = lock_summary(m, parts)
     budget = correlator_budget(m)
     lines = [w for w in (budget_warning(m, budget), lock_warning(m, lock)) if w]
+    lines += list(m.terrain.notes)  # how user GeoTIFFs were taken (edge-extended, nodata)
     return {"lock": lock, "correlator_budget": budget}, lines
 
 

@@ -35,7 +35,7 @@ from orbit.sun import sun_elevation_azimuth_deg
 from orbit.suspension import Suspension
 from orbit.tle import TleOrbit
 from scene.classes import CloudLayer, cloud_cell_m, cloud_layer, scene_class
-from scene.geotiff import GeoTiffError, terrain_from_geotiff
+from scene.geotiff import GeoTiffError, nodata_in_view, terrain_from_geotiff
 from scene.terrain import Terrain, flat_terrain
 
 
@@ -102,8 +102,10 @@ def build_orbit(sc: Scenario, terrain: Terrain | None = None) -> EarthOrbit:
         if o.kind == "elements":
             return Orbit(o.semi_major_axis_m, o.eccentricity, o.inclination_deg, o.raan_deg,
                          o.arg_perigee_deg, o.mean_anomaly_deg, sc.epoch, o.j2)
+        if o.kind == "oem":
+            return build_oem(sc)
     except ValueError as e:
-        raise ScenarioError(f"orbit: {e}") from None
+        raise ScenarioError(e if str(e).startswith("orbit.") else f"orbit: {e}") from None
     if o.kind == "sun_synchronous":
         from orbit.kepler import sun_synchronous_inclination_deg
 
@@ -127,6 +129,19 @@ def build_orbit(sc: Scenario, terrain: Terrain | None = None) -> EarthOrbit:
     except ValueError as e:
         raise ScenarioError(f"scene.center_lat_deg: {e}; lower it, raise orbit.inclination_deg "
                             "or change attitude.roll_deg / pitch_deg") from None
+
+
+def build_oem(sc: Scenario):
+    """The orbit of ``orbit.oem_file``, refused in one line unless it spans the run."""
+    from orbit.oem_orbit import read_oem
+
+    orbit = read_oem(sc.orbit.oem_file, sc.epoch)
+    if not orbit.covers(0.0, sc.duration_s):
+        raise ValueError(f"orbit.oem_file: {orbit.source} has states for t = "
+                         f"{orbit.t_s[0]:.6g} .. {orbit.t_s[-1]:.6g} s, not the run's 0 .. "
+                         f"{sc.duration_s:g} s (t = 0 at orbit.epoch_utc); give states over the "
+                         "run or move orbit.epoch_utc")
+    return orbit
 
 
 def build_aircraft(sc: Scenario, terrain: Terrain | None) -> Aircraft:
@@ -156,9 +171,13 @@ def build_aircraft(sc: Scenario, terrain: Terrain | None) -> Aircraft:
                                a.roll_deg, a.pitch_deg)
 
 
-def build_jitter(sc: Scenario, ifov_rad: float):
-    """The jitter realisation of this scenario (stream 'jitter')."""
+def build_jitter(sc: Scenario, ifov_rad: float, orbit: EarthOrbit | None = None,
+                 nominal: Attitude | None = None):
+    """The jitter realisation of this scenario (stream 'jitter'), or its measured series
+    (attitude.jitter.series; an AEM's is taken against ``nominal`` on ``orbit``)."""
     j = sc.attitude.jitter
+    if j.series is not None:
+        return build_jitter_series(sc, ifov_rad, orbit, nominal)
 
     def rad(urad, px):
         return urad * 1e-6 if urad is not None else px * ifov_rad
@@ -178,6 +197,37 @@ def build_jitter(sc: Scenario, ifov_rad: float):
     return series
 
 
+def build_jitter_series(sc: Scenario, ifov_rad: float, orbit: EarthOrbit | None,
+                        nominal: Attitude | None):
+    """attitude.jitter.series as a SampledJitter, refused in one line unless it covers the run
+    at the tracker's frame rate."""
+    from orbit.attitude_series import (
+        AttitudeSeriesError,
+        jitter_from_attitude,
+        read_aem,
+        read_jitter_csv,
+    )
+
+    s = sc.attitude.jitter.series
+    what = "attitude.jitter.series.file"
+    try:
+        if s.format == "csv":
+            series = read_jitter_csv(s.file, sc.epoch, ifov_rad, what)
+        else:
+            if orbit is None or nominal is None:
+                raise ValueError("an AEM's jitter needs the orbit and the nominal attitude")
+            series = jitter_from_attitude(
+                read_aem(s.file, sc.epoch, what),
+                lambda t: nominal.eci_from_body(orbit, t, nominal=True), sc.epoch)
+        series.check_covers(0.0, sc.duration_s, sc.camera.tracker.frame_rate_hz,
+                            "attitude.jitter.series")
+    except AttitudeSeriesError as e:
+        raise ScenarioError(str(e)) from None
+    except ValueError as e:  # the orbit does not span the AEM's times
+        raise ScenarioError(f"attitude.jitter.series: {e}") from None
+    return series
+
+
 def build_scene(sc: Scenario, light: bool = False
                 ) -> tuple[Terrain, CloudLayer | None, tuple[float, float], tuple[float, float]]:
     """Terrain, cloud layer, centre (lat, lon) deg and sun (elevation, azimuth) deg.
@@ -191,7 +241,8 @@ def build_scene(sc: Scenario, light: bool = False
         try:
             terrain, file_centre = terrain_from_geotiff(g.ortho, g.dem, s.dem_spacing_m,
                                                         g.albedo_scale,
-                                                        max_side=2048 if light else None)
+                                                        max_side=2048 if light else None,
+                                                        band=g.band)
         except GeoTiffError as e:
             raise ScenarioError(str(e)) from None
         centre = file_centre or centre
@@ -246,14 +297,17 @@ def build_models(sc: Scenario, light: bool = False) -> Models:
                             "scene.clouds.cover: 0")
     attitude_cls = AircraftAttitude if isinstance(orbit, Aircraft) else Attitude
     try:
-        attitude = attitude_cls(
+        nominal = attitude_cls(
             mode=a.mode,
             roll_deg=a.roll_deg if a.mode == "off_nadir" else 0.0,
             pitch_deg=a.pitch_deg if a.mode == "off_nadir" else 0.0,
             target_ecef_m=tuple(frame.origin_ecef_m.tolist()) if a.mode == "target" else None,
             yaw_steering=a.yaw_steering,
-            jitter=build_jitter(sc, fp.ifov_rad),
         )
+        attitude = dataclasses.replace(nominal, jitter=build_jitter(sc, fp.ifov_rad, orbit,
+                                                                    nominal))
+    except ScenarioError:
+        raise
     except ValueError as e:
         raise ScenarioError(f"attitude: {e}") from None
     cam = CameraModel(orbit, attitude, frame, fp)
@@ -365,6 +419,9 @@ def _check_coverage(m: Models) -> None:
     times = np.sort(np.concatenate([times[:: max(1, len(times) // 64)], times[-1:]]))
     times = times[np.r_[True, np.diff(times) > 0]]  # unique (np.unique imports numpy.ma)
     pts = m.camera.ground_points(corners, times, m.terrain.height_at)
+    holes = nodata_in_view(m.terrain, pts[:, [0, 1, 3, 2], :2])  # user files' nodata
+    if holes:
+        raise ScenarioError(holes)
     inside = m.terrain.contains(pts[..., 0], pts[..., 1], margin_m=4.0 * m.terrain.dem_spacing_m)
     if not np.all(inside):
         need = 2.0 * float(np.max(np.abs(pts[..., :2]))) + 8.0 * m.terrain.dem_spacing_m

@@ -1,0 +1,117 @@
+"""The ground's record in a run (imc.wiring.links, imc.wiring.restitution): the analytic
+plant's chain and its links, the network's record in the product, stage + ground against the
+stage alone, and the geometry-only product against the rendered one."""
+
+import numpy as np
+import pytest
+import yaml
+
+from compensation.loop import simulate
+from imc.pipeline import run_scenario
+from imc.scenario import parse_scenario
+from imc.wiring.build import build_loop, build_models
+from imc.wiring.links import measure_links, overlap_baselines
+from imc.wiring.rendered_plant import build_plant
+from tests.test_product import TDI
+
+
+def _scenario(**changes) -> dict:
+    d = yaml.safe_load(yaml.safe_dump(TDI))
+    for path, value in changes.items():
+        cur = d
+        keys = path.split(".")
+        for k in keys[:-1]:
+            cur = cur.setdefault(k, {})
+        cur[keys[-1]] = value
+    return d
+
+
+def _loop(d: dict):
+    m = build_models(parse_scenario(d))
+    plant = build_plant(m)
+    parts = build_loop(m, None, float(np.mean(plant.sigma_px)))
+    res = simulate(plant, parts.estimator, parts.controller, parts.actuator, parts.transport,
+                   parts.timeline, enabled=m.scenario.compensation.enabled,
+                   supervisor=parts.supervisor)
+    return m, plant, res
+
+
+def test_the_analytic_plant_chains_and_its_first_baseline_is_the_loops_own():
+    # a scanning view: the analytic plant re-references every frame as the image plants do,
+    # and the ground's baseline-1 links carry the loop's own measurement noise
+    m, plant, res = _loop(_scenario())
+    assert m.chain and plant.chain
+    assert np.all(res.record.ref_frame[2:, 0] == np.arange(1, len(m.frame_t_s) - 1))
+    links = measure_links(m, res.record, plant, np.zeros((len(m.frame_t_s), 2)), k_max=1)
+    assert np.all(links.baseline == 1) and links.valid.all()
+    # the loop's shift less the plant's own prediction and the stage is the link's jitter
+    # increment, block by block: their means agree to rounding
+    rec = res.record
+    k = np.arange(1, len(m.frame_t_s))
+    pred = plant.nominal[k] - plant.nominal[k - 1]
+    stage = plant.stage_mean[k] - plant.stage_mean[k - 1]
+    w = 1.0 / plant.sigma_px**2  # (B, 2): the link is the blocks' inverse-variance mean
+    loop_d = ((rec.shift_px[k] - pred + stage[:, None, :]) * w).sum(axis=1) / w.sum(axis=0)
+    np.testing.assert_allclose(links.d_px, loop_d, atol=1e-9)
+    # more baselines: each frame against up to K earlier ones
+    assert overlap_baselines(m) >= 3
+    more = measure_links(m, rec, plant, np.zeros((len(m.frame_t_s), 2)), k_max=3)
+    assert set(np.unique(more.baseline)) == {1, 2, 3}
+
+
+def test_consecutive_chain_links_share_their_frames_noise():
+    # rho = 0.1 of each link's variance per frame: consecutive links correlate by -0.1
+    from compensation.analytic_plant import AnalyticPlant
+
+    t = np.arange(4001) / 200.0
+    plant = AnalyticPlant(lambda tt: np.zeros((len(tt), 1, 2)), np.zeros((1, 2)), 0.01, t,
+                          1e-4, seed=(5,), chain=True)
+    a, b, d, _, _ = plant.pair_links(1)
+    e = d[:, 0, :]
+    corr = [np.corrcoef(e[:-1, i], e[1:, i])[0, 1] for i in range(2)]
+    assert np.std(e) == pytest.approx(0.01, rel=0.05)
+    np.testing.assert_allclose(corr, -0.1, atol=3 / np.sqrt(len(e)))
+
+
+def _geometry(tmp_path, name, **changes) -> dict:
+    sc = parse_scenario(_scenario(**{"product.render": False, **changes}))
+    metrics, _ = run_scenario(sc, tmp_path / name, rerun=False)
+    return metrics["product"]
+
+
+def test_stage_and_ground_is_never_worse_than_the_stage_and_better_above_its_band(tmp_path):
+    # a deliberately noisy record (0.3 px a block, a bare chain, no smoother): the ground
+    # must not add its noise to what the stage left
+    noisy = _geometry(tmp_path, "noisy", **{
+        "plant.sigma_px": 0.3, "product.restitution": {"baselines": 1, "smoother": False},
+        "attitude.jitter": {"sinusoids": [{"axis": "roll", "frequency_hz": 3.0,
+                                           "amplitude_px": 0.5}]}})
+    g = noisy["geometry"]["closed"]
+    stage_only, both = np.array(g["before"]["rms_px"]), np.array(g["after"]["rms_px"])
+    open_after = np.array(noisy["geometry"]["open"]["after"]["rms_px"])
+    assert open_after[1] > stage_only[1]  # the record applied whole would hurt across track
+    assert np.all(both <= 1.1 * stage_only)
+    # a 45 Hz roll line above a slow stage's band (an integrator at 5 Hz): the record
+    # resolves it (200 Hz) and the ground removes what the stage leaves
+    fast = _geometry(tmp_path, "fast", **{
+        "attitude.jitter": {"sinusoids": [{"axis": "roll", "frequency_hz": 45.0,
+                                           "amplitude_px": 0.3}]},
+        "compensation.controller": {"kind": "integrator", "gain": 0.3}})
+    g = fast["geometry"]["closed"]
+    assert np.array(g["before"]["rms_px"])[1] > 0.05
+    assert np.array(g["after"]["rms_px"])[1] < 0.5 * np.array(g["before"]["rms_px"])[1]
+
+
+def test_the_record_is_the_networks_and_predicts_its_error(tmp_path):
+    p = _geometry(tmp_path, "net")
+    rec = p["record"]
+    assert rec["restitution"]["baselines"] >= 3 and rec["restitution"]["links"] > 24
+    # the predicted error after an affine is the size of the measured one (both ways)
+    measured = np.array(p["geometry"]["open"]["affine"]["rms_px"])
+    predicted = np.array(rec["predicted"]["affine_px"])
+    assert np.all(measured < 3.0 * predicted) and np.all(measured > predicted / 3.0)
+    # control points fused in the solve: the absolute error is bounded without a constant
+    cp = _geometry(tmp_path, "gcp", **{"product.ground_control": {"points": 3,
+                                                                  "sigma_px": 0.002}})
+    absolute = np.array(cp["geometry"]["open"]["control_points"]["rms_px"])
+    assert np.all(absolute < 0.02)

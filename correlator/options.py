@@ -104,7 +104,7 @@ class CorrelatorOptions:
     max_shift_px: float | None = None
     max_crlb_px: float | None = None
     weighting: str = "snr"
-    rewindow: bool = True
+    rewindow: bool | None = None
     iterations: int = 3
     workers: int = -1
     optical: JtocModel | None = None
@@ -127,6 +127,8 @@ class CorrelatorOptions:
                               ("detection", DETECTIONS)):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
+        if self.rewindow not in (None, True, False):
+            raise ValueError(f"rewindow must be None, True or False, got {self.rewindow!r}")
         if self.jtc_filter == "plain" and not self.joint_plane:
             raise ValueError("jtc_filter='plain' needs joint_plane=True (the fast path has no "
                              "DC terms to keep)")

@@ -134,12 +134,21 @@ DETECT_SMOOTH_BINS = 11
 #: blocks per chunk of work (a 128^2 block's arrays take ~0.4 MB; 32 measured fastest here)
 CHUNK_BLOCKS = 32
 #: the default path (``rewindow=None``) gives a block the common-content passes after its
-#: first pass when that pass predicts an error above ADAPT_MAX_CRLB_PX (px, either axis),
-#: finds a PSR below ADAPT_MIN_PSR or has not settled (:meth:`Correlator._needs_precise`)
+#: first pass (:meth:`Correlator._needs_precise`) when that pass predicts an error above
+#: ADAPT_MAX_CRLB_PX (px, either axis: weak or smooth texture; both images' weights raise
+#: the valid fraction there) or below ADAPT_MIN_CRLB_PX (high SNR: the first pass's window
+#: bias, 0.003-0.008 px noise-free on the strong texture at 128^2, would dominate), finds a
+#: PSR below ADAPT_MIN_PSR, has not settled, differs from the fixed windows' estimate by more
+#: than ADAPT_MAX_GAP_SIGMA predicted sigma, or has a broad peak: a restoring ratio
+#: (:mod:`correlator.tail`) above ADAPT_MAX_RHO on an axis, i.e. the texture's power at low
+#: frequencies (0.93 on the strong texture, 0.96 on the medium one and on the quickstart's
+#: rendered 64^2 blocks, 0.96-0.98 on 1/f^3-1/f^3.5 texture), where the first pass was off by
+#: 2-10x its predicted error: the quickstart's tracker error went from 0.015 to 0.067 px
 ADAPT_MAX_CRLB_PX = 0.05
 ADAPT_MIN_PSR = 8.0
 ADAPT_MIN_CRLB_PX = 0.005
 ADAPT_MAX_GAP_SIGMA = 1.0
+ADAPT_MAX_RHO = 0.95
 #: the first pass's reference window leaves this much (px) of cur's flat region beyond the
 #: shift on either side, for the shift's own error
 FIRST_SAFETY_PX = 0.25
@@ -777,7 +786,7 @@ class Correlator:
                 # from d is the way to its peak (differs by the windows' bias, if any)
                 gap = np.abs(self._newton(y, first, d[first], 1)[2]).max(axis=1)
                 precise[first] = self._needs_precise(crlb[first], psr[first], settled[first],
-                                                     gap)
+                                                     gap, rho[first])
         sane = trusted | (np.abs(d - d0).max(axis=1) < lay.q + 1)
         # ---- common-content passes
         idx = np.flatnonzero(precise)
@@ -788,18 +797,24 @@ class Correlator:
 
     @staticmethod
     def _needs_precise(crlb: np.ndarray, psr: np.ndarray, settled: np.ndarray,
-                       gap: np.ndarray) -> np.ndarray:
+                       gap: np.ndarray, rho: np.ndarray) -> np.ndarray:
         """Which blocks (n,) need the common-content passes after their first pass, from
-        the block's own statistics (never the truth): a predicted error crlb (n, 2) px above
-        :data:`ADAPT_MAX_CRLB_PX` (weak or smooth texture, where both images' weights lower
-        the error and raise the valid fraction), a PSR (n,) below :data:`ADAPT_MIN_PSR` (near
-        the detection floor), a first pass that has not settled, or one whose estimate and
-        the fixed windows' differ by ``gap`` (n,) px, more than :data:`ADAPT_MAX_GAP_SIGMA`
-        times the predicted error (the windows bias the estimate: a smooth texture whose
-        power lies at the lowest frequencies)."""
+        the block's own statistics (never the truth).
+
+        A predicted error ``crlb`` (n, 2) px above :data:`ADAPT_MAX_CRLB_PX` (weak or smooth
+        texture, where both images' weights lower the error and raise the valid fraction) or
+        below :data:`ADAPT_MIN_CRLB_PX` (high SNR, where the first pass's window bias would
+        dominate); a PSR ``psr`` (n,) below :data:`ADAPT_MIN_PSR` (near the detection floor);
+        a first pass that has not ``settled`` (n,); a ``gap`` (n,) px between its estimate
+        and the fixed windows' of more than :data:`ADAPT_MAX_GAP_SIGMA` predicted errors (the
+        windows bias the estimate); or a broad peak, a restoring ratio ``rho`` (n, 2) above
+        :data:`ADAPT_MAX_RHO` on an axis (power at the lowest frequencies, where the windows'
+        bias grows; NaN counts as broad).
+        """
         c = crlb.max(axis=1)
         return (~settled | (c > ADAPT_MAX_CRLB_PX) | (c < ADAPT_MIN_CRLB_PX)
-                | (psr < ADAPT_MIN_PSR) | (gap > ADAPT_MAX_GAP_SIGMA * c))
+                | (psr < ADAPT_MIN_PSR) | (gap > ADAPT_MAX_GAP_SIGMA * c)
+                | ~(np.max(rho, axis=1) <= ADAPT_MAX_RHO))
 
     def _first_pass(self, blk, ridx, cspec, noise, d, cache):
         """The first pass of blocks ``blk`` at their shifts d (n, 2) px: ref windowed zero

@@ -41,21 +41,26 @@ def test_adaptive_decision_sends_smooth_blocks_to_the_precise_passes():
     """From the block's own first pass: smooth low-contrast blocks (1/f^3 texture, std 15 %
     of the mean, SNR 10; predicted errors 0.05-0.2 px) take the common-content passes, strong
     texture at SNR 10 (0.007 px) keeps the first pass (but the few, ~2 %, whose first pass
-    and fixed windows disagree by more than a predicted sigma); the same through the unit
-    rule."""
+    and fixed windows disagree by more than a predicted sigma); each of the rule's reasons
+    on its own."""
     ref, cur, _ = _smooth_pairs(24, 3502)
     assert measure_shift(ref, cur).precise.mean() >= 0.9
     ref, cur, _ = texture_pairs(24, 128, np.random.default_rng(3503), snr=10.0)
     assert measure_shift(ref, cur).precise.mean() <= 0.1  # 2 of 24 here: their windows differ
-    rule = Correlator._needs_precise
-    ok = np.ones(1, bool)
-    crlb = np.full((1, 2), 0.01)
-    assert not rule(crlb, np.array([20.0]), ok, np.array([0.0]))[0]  # strong: first pass
-    assert rule(crlb * 10, np.array([20.0]), ok, np.array([0.0]))[0]  # predicted error
-    assert rule(crlb, np.array([6.0]), ok, np.array([0.0]))[0]  # near the PSR floor
-    assert rule(crlb, np.array([20.0]), ~ok, np.array([0.0]))[0]  # not settled
-    assert rule(crlb, np.array([20.0]), ok, np.array([0.02]))[0]  # the windows disagree
-    assert rule(crlb / 10, np.array([20.0]), ok, np.array([0.0]))[0]  # window bias dominates
+    ok, sharp, hi = np.ones(1, bool), np.full((1, 2), 0.93), np.array([20.0])
+    crlb, zero = np.full((1, 2), 0.01), np.array([0.0])
+
+    def rule(crlb=crlb, psr=hi, settled=ok, gap=zero, rho=sharp):
+        return bool(Correlator._needs_precise(crlb, psr, settled, gap, rho)[0])
+
+    assert not rule()  # a strong block keeps its first pass
+    assert rule(crlb=crlb * 10)  # a large predicted error
+    assert rule(crlb=crlb / 10)  # so small that the first pass's window bias dominates
+    assert rule(psr=np.array([6.0]))  # near the PSR floor
+    assert rule(settled=~ok)  # not settled
+    assert rule(gap=np.array([0.02]))  # the first pass and the fixed windows disagree
+    assert rule(rho=np.full((1, 2), 0.97))  # a broad peak: smooth texture
+    assert rule(rho=np.full((1, 2), np.nan))
 
 
 def test_mixed_batch_accuracy_within_ten_percent_of_the_precise_path():

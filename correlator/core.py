@@ -781,7 +781,7 @@ class Correlator:
             first = np.flatnonzero(fin & ~far)
             d[first], crlb[first], settled[first], rho[first] = self._first_pass(
                 first, ridx, cspec, noise, d, cache)
-            if o.rewindow is None:  # adaptive: the passes where the first pass says so
+            if o.rewindow is None and len(first):  # adaptive: the passes where needed
                 # the first pass against the fixed windows' estimate: one Newton step on y
                 # from d is the way to its peak (differs by the windows' bias, if any)
                 gap = np.abs(self._newton(y, first, d[first], 1)[2]).max(axis=1)

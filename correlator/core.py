@@ -136,8 +136,11 @@ CHUNK_BLOCKS = 32
 #: the default path (``rewindow=None``) gives a block the common-content passes after its
 #: first pass (:meth:`Correlator._needs_precise`) when that pass predicts an error above
 #: ADAPT_MAX_CRLB_PX (px, either axis: weak or smooth texture; both images' weights raise
-#: the valid fraction there) or below ADAPT_MIN_CRLB_PX (high SNR: the first pass's window
-#: bias, 0.003-0.008 px noise-free on the strong texture at 128^2, would dominate), finds a
+#: the valid fraction there) or below ADAPT_MIN_CRLB_PX (px, for 128^2 blocks, scaled as
+#: 128 / block size: high SNR, where the first pass's window bias, 0.003-0.008 px noise-free on
+#: the strong texture at 128^2, an edge effect, would dominate; at 256^2 with 0.0025 px the
+#: strong texture at SNR 10 keeps the first pass, 1.21x the bound against the passes' 1.18x,
+#: and SNR 30-100 takes the passes, 1.02-1.05x against the first pass's 1.17-2.05x), finds a
 #: PSR below ADAPT_MIN_PSR, has not settled, differs from the fixed windows' estimate by more
 #: than ADAPT_MAX_GAP_SIGMA predicted sigma, or has a broad peak: a restoring ratio
 #: (:mod:`correlator.tail`) above ADAPT_MAX_RHO on an axis, i.e. the texture's power at low
@@ -785,8 +788,9 @@ class Correlator:
                 # the first pass against the fixed windows' estimate: one Newton step on y
                 # from d is the way to its peak (differs by the windows' bias, if any)
                 gap = np.abs(self._newton(y, first, d[first], 1)[2]).max(axis=1)
-                precise[first] = self._needs_precise(crlb[first], psr[first], settled[first],
-                                                     gap, rho[first])
+                precise[first] = self._needs_precise(
+                    crlb[first], psr[first], settled[first], gap, rho[first],
+                    ADAPT_MIN_CRLB_PX * 128.0 / min(h, w))
         sane = trusted | (np.abs(d - d0).max(axis=1) < lay.q + 1)
         # ---- common-content passes
         idx = np.flatnonzero(precise)
@@ -797,14 +801,16 @@ class Correlator:
 
     @staticmethod
     def _needs_precise(crlb: np.ndarray, psr: np.ndarray, settled: np.ndarray,
-                       gap: np.ndarray, rho: np.ndarray) -> np.ndarray:
+                       gap: np.ndarray, rho: np.ndarray,
+                       min_crlb_px: float = ADAPT_MIN_CRLB_PX) -> np.ndarray:
         """Which blocks (n,) need the common-content passes after their first pass, from
         the block's own statistics (never the truth).
 
         A predicted error ``crlb`` (n, 2) px above :data:`ADAPT_MAX_CRLB_PX` (weak or smooth
         texture, where both images' weights lower the error and raise the valid fraction) or
-        below :data:`ADAPT_MIN_CRLB_PX` (high SNR, where the first pass's window bias would
-        dominate); a PSR ``psr`` (n,) below :data:`ADAPT_MIN_PSR` (near the detection floor);
+        below ``min_crlb_px`` (high SNR, where the first pass's window bias would dominate;
+        :data:`ADAPT_MIN_CRLB_PX` at 128^2); a PSR ``psr`` (n,) below
+        :data:`ADAPT_MIN_PSR` (near the detection floor);
         a first pass that has not ``settled`` (n,); a ``gap`` (n,) px between its estimate
         and the fixed windows' of more than :data:`ADAPT_MAX_GAP_SIGMA` predicted errors (the
         windows bias the estimate); or a broad peak, a restoring ratio ``rho`` (n, 2) above
@@ -812,7 +818,7 @@ class Correlator:
         bias grows; NaN counts as broad).
         """
         c = crlb.max(axis=1)
-        return (~settled | (c > ADAPT_MAX_CRLB_PX) | (c < ADAPT_MIN_CRLB_PX)
+        return (~settled | (c > ADAPT_MAX_CRLB_PX) | (c < min_crlb_px)
                 | (psr < ADAPT_MIN_PSR) | (gap > ADAPT_MAX_GAP_SIGMA * c)
                 | ~(np.max(rho, axis=1) <= ADAPT_MAX_RHO))
 

@@ -23,6 +23,20 @@ this tree), on the same draws (same seed, same test-image code), and prints one 
 - speed of the default path (``measure_shift`` on 256 pairs, one thread), timed in
   alternating subprocesses of the two trees (``--rounds`` each; the best run of each: a
   shared machine's neighbours only slow a run down).
+
+Two further modes of this tree alone (issue 35):
+
+- ``--tracking``: the tracking path (one :class:`Correlator` of 64 fixed 128^2 references,
+  all cores), the default (adaptive) against the precise (``rewindow=True``) and the
+  one-FFT (``rewindow=False``) paths, timed alternately in one process (``--rounds`` rounds;
+  the medians and the median of the per-round ratios), with each path's RMS error over the
+  Cramer-Rao bound and the fraction of blocks re-windowed, on the same pairs.
+- ``--smooth``: validity on a family of smooth, low-contrast textures generated here
+  (:func:`correlator.testimages.powerlaw_images`, 1/f^beta spectra, beta 2.5-3.5, several
+  contrasts, 128^2, SNR 10): valid and within 0.5 px, false-valid (valid and 0.5 px or more
+  off, over the valid) of the default, precise and one-FFT paths against scikit-image's
+  ``phase_cross_correlation`` (upsample 100) within 0.5 px on the same pairs; and
+  checkerboards and stripes (periodic, one-directional) flagged valid.
 """
 
 from __future__ import annotations
@@ -137,6 +151,107 @@ def speed(n: int = 256, repeats: int = 5) -> float:
     return n / best
 
 
+PATHS = {"default": None, "precise": True, "1 FFT": False}
+
+
+def tracking(pairs: int, rounds: int, seed: int) -> None:
+    """Print the ``--tracking`` table (see the module doc)."""
+    from correlator.bounds import crlb_px
+    from correlator.core import Correlator
+    from correlator.testimages import MEAN_LEVEL, texture_pairs
+
+    rng = np.random.default_rng(seed)
+    n_track = 64
+    print("| texture (SNR 10), 64 blocks of 128^2 | path | correlations/s (median of "
+          f"{rounds}) | best | RMS / CRLB | RMS (px) | re-windowed |")
+    print("|---|---|---|---|---|---|---|")
+    for tex in ("strong", "medium"):
+        ref, cur, d, clean = texture_pairs(pairs, 128, rng, snr=10.0, texture=tex,
+                                           return_clean=True)
+        bound = crlb_px(clean, MEAN_LEVEL / 10.0)
+        acc = {}
+        for name, rw in PATHS.items():
+            r = Correlator(ref, rewindow=rw).measure(cur)
+            err = r.shift - d
+            ok = r.valid & (np.abs(err).max(axis=1) < 0.5)
+            acc[name] = (_rms(err[ok]) / _rms(bound[ok]), _rms(err[ok]), r.precise.mean())
+        cs = {k: Correlator(ref[:n_track], rewindow=rw) for k, rw in PATHS.items()}
+        for c in cs.values():
+            c.measure(cur[:n_track])
+        times = {k: [] for k in PATHS}
+        for _ in range(rounds):  # alternated: a neighbour's load falls on every path alike
+            for k, c in cs.items():
+                t0 = time.perf_counter()
+                c.measure(cur[:n_track])
+                times[k].append(time.perf_counter() - t0)
+        for k in PATHS:
+            t = np.array(times[k])
+            print(f"| {tex} | {k} | {n_track / np.median(t):,.0f} | {n_track / t.min():,.0f} | "
+                  f"{acc[k][0]:.3f} | {acc[k][1]:.4f} | {100 * acc[k][2]:.0f} % |")
+        ratio = np.array(times["precise"]) / np.array(times["default"])
+        ratio_f = np.array(times["1 FFT"]) / np.array(times["default"])
+        print(f"| {tex} | default / precise speed, median of per-round ratios | "
+              f"{np.median(ratio):.2f}x | | | | |")
+        print(f"| {tex} | default / 1 FFT speed, median of per-round ratios | "
+              f"{np.median(ratio_f):.2f}x | | | | |")
+
+
+def smooth(pairs: int, seed: int) -> None:
+    """Print the ``--smooth`` table (see the module doc)."""
+    from correlator.core import measure_shift
+    from correlator.testimages import image_pairs, powerlaw_images
+    from imc.studies.correlator_peers import peers
+
+    sk = [fn for name, fn in peers(1, hann=None).items() if name.startswith("scikit")]
+    rng = np.random.default_rng(seed)
+    family = ((2.5, 0.05), (2.5, 0.08), (3.0, 0.15), (3.0, 0.3), (3.5, 0.3), (3.5, 0.6))
+    names = list(PATHS) + (["scikit-image (within 0.5 px)"] if sk else [])
+    print("| beta / contrast | " + " | ".join(
+        f"{k}: valid & within / false-valid / re-windowed" if k in PATHS else k
+        for k in names) + " |")
+    print("|---|" + "---|" * len(names))
+    pool = {k: np.zeros(3) for k in names}  # valid & within, valid & off, all
+    for beta, contrast in family:
+        ims = powerlaw_images(8, 384, beta, rng)
+        ref, cur, d = image_pairs(ims, pairs, 128, rng, snr=10.0, contrast=contrast)
+        cells = []
+        for k in names:
+            if k in PATHS:
+                r = measure_shift(ref, cur, rewindow=PATHS[k])
+                bad = np.abs(r.shift - d).max(axis=1) >= 0.5
+                good, off = int((r.valid & ~bad).sum()), int((r.valid & bad).sum())
+                cells.append(f"{100 * good / pairs:.1f} % / "
+                             f"{100 * off / max(good + off, 1):.2f} % / "
+                             f"{100 * r.precise.mean():.0f} %")
+            else:
+                s = sk[0](ref.astype(np.float64), cur.astype(np.float64))[0]
+                good, off = int((np.abs(s - d).max(axis=1) < 0.5).sum()), 0
+                cells.append(f"{100 * good / pairs:.1f} %")
+            pool[k] += (good, off, pairs)
+        print(f"| {beta} / {contrast} | " + " | ".join(cells) + " |")
+    print("| pooled | " + " | ".join(
+        f"{100 * p[0] / p[2]:.1f} % / {100 * p[1] / max(p[0] + p[1], 1):.2f} %"
+        if k in PATHS else f"{100 * p[0] / p[2]:.1f} %" for k, p in pool.items()) + " |")
+    # periodic and one-directional patterns: never valid
+    yy, xx = np.mgrid[0:160, 0:160] + 0.5
+    valid = {k: 0 for k in PATHS}
+    total = 0
+    for period in (6.0, 8.0, 11.0):
+        checker = 100 + 20 * np.sign(np.sin(np.pi * yy / (period / 2))
+                                     * np.sin(np.pi * xx / (period / 2)))
+        stripes = 100 + 20 * np.sin(2 * np.pi * (xx + 0.3 * yy) / period)
+        for img in (checker, stripes):
+            for _ in range(10):
+                dy, dx = rng.integers(-4, 5, 2)
+                ref = img[16:144, 16:144] + rng.normal(0, 1.0, (4, 128, 128))
+                cur = img[16 - dy:144 - dy, 16 - dx:144 - dx] + rng.normal(0, 1.0, (4, 128, 128))
+                for k, rw in PATHS.items():
+                    valid[k] += int(measure_shift(ref, cur, rewindow=rw).valid.sum())
+                total += 4
+    print("periodic / one-directional pairs flagged valid: " + ", ".join(
+        f"{k} {v} of {total}" for k, v in valid.items()))
+
+
 def _sub(tree: Path, *args: str) -> dict:
     env = {**os.environ, "PYTHONPATH": str(tree), "OMP_NUM_THREADS": "1"}
     res = subprocess.run([sys.executable, __file__, "--child", *args], env=env, check=True,
@@ -161,8 +276,18 @@ def main() -> None:
     ap.add_argument("--smooth-fraction", type=float, default=None,
                     help="correlator.core.SMOOTH_FRACTION for the 'after' tree (the power "
                     "average's box over the block size)")
+    ap.add_argument("--tracking", action="store_true", help="the tracking paths' speed and "
+                    "accuracy, this tree alone (see the module doc)")
+    ap.add_argument("--smooth", action="store_true", help="validity on generated smooth "
+                    "textures against scikit-image, this tree alone")
     ap.add_argument("--child", nargs="*")
     a = ap.parse_args()
+    if a.tracking or a.smooth:
+        if a.tracking:
+            tracking(a.pairs, a.rounds, a.seed)
+        if a.smooth:
+            smooth(a.pairs, a.seed)
+        return
     if a.child is not None:
         if a.smooth_fraction is not None:
             import correlator.core

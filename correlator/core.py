@@ -133,6 +133,28 @@ BOTH_POWER_SE = 1.0
 DETECT_SMOOTH_BINS = 11
 #: blocks per chunk of work (a 128^2 block's arrays take ~0.4 MB; 32 measured fastest here)
 CHUNK_BLOCKS = 32
+#: the default path (``rewindow=None``) gives a block the common-content passes after its
+#: first pass (:meth:`Correlator._needs_precise`) when that pass predicts an error above
+#: ADAPT_MAX_CRLB_PX (px, either axis: weak or smooth texture; both images' weights raise
+#: the valid fraction there) or below ADAPT_MIN_CRLB_PX (px, for 128^2 blocks, scaled as
+#: 128 / block size: high SNR, where the first pass's window bias, 0.003-0.008 px noise-free on
+#: the strong texture at 128^2, an edge effect, would dominate; at 256^2 with 0.0025 px the
+#: strong texture at SNR 10 keeps the first pass, 1.21x the bound against the passes' 1.18x,
+#: and SNR 30-100 takes the passes, 1.02-1.05x against the first pass's 1.17-2.05x), finds a
+#: PSR below ADAPT_MIN_PSR, has not settled, differs from the fixed windows' estimate by more
+#: than ADAPT_MAX_GAP_SIGMA predicted sigma, or has a broad peak: a restoring ratio
+#: (:mod:`correlator.tail`) above ADAPT_MAX_RHO on an axis, i.e. the texture's power at low
+#: frequencies (0.93 on the strong texture, 0.96 on the medium one and on the quickstart's
+#: rendered 64^2 blocks, 0.96-0.98 on 1/f^3-1/f^3.5 texture), where the first pass was off by
+#: 2-10x its predicted error: the quickstart's tracker error went from 0.015 to 0.067 px
+ADAPT_MAX_CRLB_PX = 0.05
+ADAPT_MIN_PSR = 8.0
+ADAPT_MIN_CRLB_PX = 0.005
+ADAPT_MAX_GAP_SIGMA = 1.0
+ADAPT_MAX_RHO = 0.95
+#: the first pass's reference window leaves this much (px) of cur's flat region beyond the
+#: shift on either side, for the shift's own error
+FIRST_SAFETY_PX = 0.25
 #: Aitken extrapolation: smallest previous move (px) and the range of move ratios it trusts
 AITKEN_MIN_PX = 0.005
 AITKEN_RATIO = (0.2, 0.9)
@@ -160,6 +182,10 @@ class ShiftResult:
         on an axis: a noise peak (``p_false``) or the true peak's estimate in its tail
         (:mod:`correlator.tail`); valid results have p_wrong <= ``false_valid_rate``. NaN
         for the optical correlator.
+    precise : (...) bool or None, which blocks took the common-content passes (the precise
+        path: all with ``rewindow=True`` or a masked detection, none with ``rewindow=False``
+        but blocks moved beyond the exact margin; the default decides per block,
+        :meth:`Correlator._needs_precise`).
     """
 
     shift: np.ndarray
@@ -168,6 +194,7 @@ class ShiftResult:
     crlb: np.ndarray
     p_false: np.ndarray | None = None
     p_wrong: np.ndarray | None = None
+    precise: np.ndarray | None = None
 
 
 def _as_stack(a: np.ndarray, name: str) -> np.ndarray:
@@ -281,6 +308,17 @@ def _pass_margins(d: np.ndarray) -> np.ndarray:
                     axis=-1).astype(np.int64)
 
 
+def _first_margins(d: np.ndarray, cur_taper: tuple[int, int]) -> np.ndarray:
+    """Whole-pixel zero margins (n, 2, 2) [axis, (low, high)] of the first pass's reference
+    window at shifts d (n, 2) px: its support, moved by d (and :data:`FIRST_SAFETY_PX` more
+    either way), lies where cur's window (tapered over ``cur_taper`` px at its edges) is flat,
+    so the correlation near d is the scene's."""
+    t = np.asarray(cur_taper, dtype=np.float64)[None, :]
+    lo = np.ceil(np.maximum(t - d + FIRST_SAFETY_PX, 0.0))
+    hi = np.ceil(np.maximum(t + d + FIRST_SAFETY_PX, 0.0))
+    return np.stack([lo, hi], axis=-1).astype(np.int64)
+
+
 def _pass_windows(n: int, taper: float, lo: np.ndarray, hi: np.ndarray,
                   shift: np.ndarray | float = 0.0) -> np.ndarray:
     """Tukey windows (m, n) zero within lo (m,) px of the start and hi (m,) of the end,
@@ -365,6 +403,11 @@ class Correlator:
         self._pass_m = np.zeros((n, 3, 3))
         self._pass_pbox: np.ndarray | None = None
         self._pass_s2 = np.zeros(n)
+        # first-pass references (ref's window moved to the shift), filled on demand alike
+        self._fp_key = np.full((n, 4), -1, np.int64)
+        self._fp_wconj: np.ndarray | None = None
+        self._fp_fw: np.ndarray | None = None
+        self._fp_m = np.zeros((n, 3, 3))
         masked = o.detection == "masked" or (o.detection == "auto"
                                              and self.max_shift_px > min(h, w) / 4)
         # unwindowed reference blocks less their means: for the masked search, Lucas-Kanade
@@ -445,7 +488,7 @@ class Correlator:
         if n == 0:
             z = np.zeros((0, 2))
             return ShiftResult(z, np.zeros(0, bool), np.zeros(0), z.copy(), np.zeros(0),
-                               np.zeros(0))
+                               np.zeros(0), np.zeros(0, bool))
         with self._lock:
             if self._optical is not None:  # one pass: the emulation threads its FFTs itself
                 seeds = (rng if rng is not None else self._rng).integers(0, 2**63 - 1, size=n)
@@ -461,10 +504,13 @@ class Correlator:
                     self._pass_fw = np.empty_like(self._ref_fw)
                     self._pass_bw = np.empty_like(self._ref_bw)
                     self._pass_pbox = np.empty(self._ref_fw.shape, np.float32)
+                if cache and self._fp_wconj is None:
+                    self._fp_wconj = np.empty_like(self._ref_wconj)
+                    self._fp_fw = np.empty_like(self._ref_fw)
                 parts = self._parallel(
                     lambda s: self._measure(cur_arr[s], idx[s],
                                             None if pred is None else pred[s], cache), n)
-        out = [np.concatenate([p[i] for p in parts]) for i in range(6)]
+        out = [np.concatenate([p[i] for p in parts]) for i in range(7)]
         if self._single and np.ndim(cur) == 2:
             return ShiftResult(*(a[0] for a in out))
         return ShiftResult(*out)
@@ -594,14 +640,16 @@ class Correlator:
             d_fit = base + peaks.peak_fit(nb, kind)
 
         # ---- sub-pixel
+        precise = np.zeros(n, bool)
         if o.subpixel == "fourier":
             if self._masked is not None:
                 shift, crlb, rho, converged = self._fourier_masked(y, ridx, cur_arr, noise, d0,
                                                                    cache)
+                precise[:] = True
             else:
-                shift, crlb, rho, converged, psr, ambiguous, cells = self._fourier(
+                shift, crlb, rho, converged, psr, ambiguous, cells, precise = self._fourier(
                     y, floor, ridx, cur_arr, noise, ref_m, pred,
-                    d_fit if o.joint_plane else None, cache)
+                    d_fit if o.joint_plane else None, cache, cspec)
         else:
             if self._masked is None:
                 psr, (_, _, cells) = self._band_detect(y, self._ref_bw, ridx, floor,
@@ -639,7 +687,7 @@ class Correlator:
         )
         shift = np.where(np.isfinite(shift), shift, 0.0)
         # the detection's PSR is finite (0 where it is not)
-        return shift, valid, psr, crlb, p_false, p_wrong
+        return shift, valid, psr, crlb, p_false, p_wrong, precise
 
     def _cur0(self, cur_arr: np.ndarray) -> np.ndarray:
         return _sanitise(cur_arr)[0]
@@ -665,7 +713,8 @@ class Correlator:
                  & np.all(np.abs(shift) <= self.max_shift_px + 0.5, axis=1)
                  & np.all(crlb <= (OPTICAL_MAX_CRLB_PX if o.max_crlb_px is None
                                    else o.max_crlb_px), axis=1))
-        return shift, valid, np.nan_to_num(psr), crlb, *np.full((2, len(idx)), np.nan)
+        return (shift, valid, np.nan_to_num(psr), crlb, *np.full((2, len(idx)), np.nan),
+                np.zeros(len(idx), bool))
 
     def _band_detect(self, y: np.ndarray, bw: np.ndarray, rows: np.ndarray,
                      floor: np.ndarray, given: np.ndarray):
@@ -690,11 +739,14 @@ class Correlator:
         cells = np.full(n, float(len(self._rows_in) * len(self._cols_in)))
         return psr, (lag, ratio, cells)
 
-    def _fourier(self, y, floor, ridx, cur_arr, noise, ref_m, pred, d_fit, cache):
+    def _fourier(self, y, floor, ridx, cur_arr, noise, ref_m, pred, d_fit, cache, cspec):
         """Fourier refinement after the band detection: band Newton from the detected peak
-        (or the joint plane's fit ``d_fit``), weighted full-band Newton, common-content
-        passes; blocks with a trusted prediction ``pred`` start Newton from it.
-        Returns (shift, crlb, restoring ratio, converged, psr, ambiguous, cells)."""
+        (or the joint plane's fit ``d_fit``), weighted full-band Newton, the first pass (ref's
+        window moved to the shift, on the same cur spectrum ``cspec``) and, for the blocks
+        that need them (``rewindow``: None decides per block, :meth:`_needs_precise`; True:
+        all), the common-content passes; blocks with a trusted prediction ``pred`` start
+        Newton from it. Returns (shift, crlb, restoring ratio, converged, psr, ambiguous,
+        cells, which blocks took the common-content passes)."""
         o, lay = self.options, self._lay
         h, w = self.shape
         n = len(y)
@@ -715,19 +767,102 @@ class Correlator:
         search = np.flatnonzero(~trusted)
         if len(search):
             ds = self._newton(y, search, d0[search], 2, band=True)[0]
-            d[search], hess[search], step[search], _ = self._newton(y, search, ds, o.iterations)
+            if o.rewindow is True:
+                d[search], hess[search], step[search], _ = self._newton(y, search, ds,
+                                                                        o.iterations)
+            else:  # the first pass refines them (the band's estimate is good to ~0.1 px)
+                d[search] = ds
         crlb = _crlb(ref_m, noise, hess, h * w)
-        sane = trusted | (np.abs(d - d0).max(axis=1) < lay.q + 1)
         ambiguous = ~trusted & (ratio >= BAND_MAX_RIVAL_RATIO)
         settled = _settled(step, crlb, NEWTON_TOL_PX)
-        # ---- common-content passes: blocks moved beyond the exact margin (or all, if asked)
-        far = np.any(np.abs(d) > lay.margin, axis=1) & np.isfinite(d).all(axis=1)
-        idx = np.flatnonzero(np.ones(n, bool) if o.rewindow else far)
-        rho = np.full((n, 2), np.nan)  # the passes set theirs
-        rest = np.setdiff1d(np.arange(n), idx)
+        # ---- the first pass: ref's window moved to the shift, on the same cur spectrum
+        fin = np.isfinite(d).all(axis=1)
+        far = np.any(np.abs(d) > lay.margin, axis=1) & fin
+        rho = np.full((n, 2), np.nan)  # the first pass and the passes set theirs
+        precise = np.ones(n, bool) if o.rewindow else far.copy()
+        if o.rewindow is not True:
+            first = np.flatnonzero(fin & ~far)
+            d[first], crlb[first], settled[first], rho[first] = self._first_pass(
+                first, ridx, cspec, noise, d, cache)
+            if o.rewindow is None and len(first):  # adaptive: the passes where needed
+                # the first pass against the fixed windows' estimate: one Newton step on y
+                # from d is the way to its peak (differs by the windows' bias, if any)
+                gap = np.abs(self._newton(y, first, d[first], 1)[2]).max(axis=1)
+                precise[first] = self._needs_precise(
+                    crlb[first], psr[first], settled[first], gap, rho[first],
+                    ADAPT_MIN_CRLB_PX * 128.0 / min(h, w))
+        sane = trusted | (np.abs(d - d0).max(axis=1) < lay.q + 1)
+        # ---- common-content passes
+        idx = np.flatnonzero(precise)
+        rest = np.flatnonzero(~precise & np.isnan(rho[:, 0]))
         rho[rest] = self._restoring(y, rest, d[rest])
         settled = self._passes(idx, ridx, cur_arr, noise, d, crlb, rho, settled, cache)
-        return d, crlb, rho, sane & settled, psr, ambiguous, cells
+        return d, crlb, rho, sane & settled, psr, ambiguous, cells, precise
+
+    @staticmethod
+    def _needs_precise(crlb: np.ndarray, psr: np.ndarray, settled: np.ndarray,
+                       gap: np.ndarray, rho: np.ndarray,
+                       min_crlb_px: float = ADAPT_MIN_CRLB_PX) -> np.ndarray:
+        """Which blocks (n,) need the common-content passes after their first pass, from
+        the block's own statistics (never the truth).
+
+        A predicted error ``crlb`` (n, 2) px above :data:`ADAPT_MAX_CRLB_PX` (weak or smooth
+        texture, where both images' weights lower the error and raise the valid fraction) or
+        below ``min_crlb_px`` (high SNR, where the first pass's window bias would dominate;
+        :data:`ADAPT_MIN_CRLB_PX` at 128^2); a PSR ``psr`` (n,) below
+        :data:`ADAPT_MIN_PSR` (near the detection floor);
+        a first pass that has not ``settled`` (n,); a ``gap`` (n,) px between its estimate
+        and the fixed windows' of more than :data:`ADAPT_MAX_GAP_SIGMA` predicted errors (the
+        windows bias the estimate); or a broad peak, a restoring ratio ``rho`` (n, 2) above
+        :data:`ADAPT_MAX_RHO` on an axis (power at the lowest frequencies, where the windows'
+        bias grows; NaN counts as broad).
+        """
+        c = crlb.max(axis=1)
+        return (~settled | (c > ADAPT_MAX_CRLB_PX) | (c < min_crlb_px)
+                | (psr < ADAPT_MIN_PSR) | (gap > ADAPT_MAX_GAP_SIGMA * c)
+                | ~(np.max(rho, axis=1) <= ADAPT_MAX_RHO))
+
+    def _first_pass(self, blk, ridx, cspec, noise, d, cache):
+        """The first pass of blocks ``blk`` at their shifts d (n, 2) px: ref windowed zero
+        within whole-pixel margins that put its support, moved by d, inside cur's flat
+        region (:func:`_first_margins`), against the cur spectra ``cspec`` already made, so
+        no further FFT of cur (a tracker keeps the reference for its margins). Returns
+        (d, crlb, settled, restoring ratio) of the blocks."""
+        lay = self._lay
+        h, w = self.shape
+        if not len(blk):
+            z = np.zeros((0, 2))
+            return z, z.copy(), np.zeros(0, bool), z.copy()
+        mg = _first_margins(d[blk], lay.margin)
+        rows = ridx[blk]
+        if cache:
+            key = mg.reshape(len(blk), 4)
+            miss = np.flatnonzero(np.any(self._fp_key[rows] != key, axis=1))
+            if len(miss):
+                wc, fw, _, mm, _ = self._window_reference(rows[miss], mg[miss])
+                self._fp_wconj[rows[miss]] = wc
+                self._fp_fw[rows[miss]] = fw
+                self._fp_m[rows[miss]] = mm
+                self._fp_key[rows[miss]] = key[miss]
+            src, fw, srow, m = self._fp_wconj, self._fp_fw, rows, self._fp_m[rows]
+        else:
+            src, fw, _, m, _ = self._window_reference(rows, mg)
+            srow = np.arange(len(blk))
+        y, _, _ = self._cross(cspec if len(blk) == len(cspec) else cspec[blk], src, fw, srow)
+        b = np.arange(len(blk))
+        d2, hess, step, _ = self._newton(y, b, d[blk], self.options.iterations)
+        crlb = _crlb(m, noise[blk], hess, h * w)
+        return d2, crlb, _settled(step, crlb, NEWTON_TOL_PX), self._restoring(y, b, d2)
+
+    def _window_reference(self, rows: np.ndarray, mg: np.ndarray):
+        """:meth:`_ref_terms` (W conj(R), detection weights, CRLB sums, noise) of reference
+        blocks ``rows`` windowed with zero margins mg (m, 2, 2)."""
+        lay = self._lay
+        h, w = self.shape
+        wy = _pass_windows(h, lay.taper[0], mg[:, 0, 0], mg[:, 0, 1])
+        wx = _pass_windows(w, lay.taper[1], mg[:, 1, 0], mg[:, 1, 1])
+        ref_w, _ = self._prep(self._ref_in, rows, wy, wx)
+        return self._ref_terms(fftbackend.rfft2(ref_w), _energy(wy, wx))
 
     def _fourier_masked(self, y, ridx, cur_arr, noise, d0, cache):
         """Fourier refinement after a masked detection: the lag is good to a bin, so straight

@@ -146,3 +146,40 @@ def image_pairs(images, n: int, block_px: int, rng: np.random.Generator, *,
         gain = contrast * MEAN_LEVEL / np.maximum(a.std(axis=(1, 2), keepdims=True), 1e-12)
     return _noisy((a - mean) * gain + MEAN_LEVEL, (b - mean) * gain + MEAN_LEVEL, d, rng, snr,
                   return_clean)
+
+
+def powerlaw_images(n: int, size_px: int, beta: float, rng: np.random.Generator,
+                    cutoff_cyc_px: float = 0.45) -> np.ndarray:
+    """Smooth natural-like textures: Gaussian fields with power spectrum ~ 1 / f^beta.
+
+    Natural scenes have power spectra falling as f^-2 to f^-3.5 (smooth terrain, snow, water
+    and haze at the steep end); such a field's variance sits at the lowest frequencies, so a
+    block of it is smooth and, scaled to a low contrast, hard to register. Inputs for
+    :func:`image_pairs` (which cuts, moves and scales the blocks).
+
+    Parameters
+    ----------
+    n : number of images.
+    size_px : side of each square image, px (at least the block plus twice the shift range
+        plus 16 px for :func:`image_pairs`).
+    beta : spectral exponent (dimensionless; 2.5-3.5 for smooth texture).
+    rng : random generator (the field's phases and amplitudes).
+    cutoff_cyc_px : no power at or above this frequency, cycles/px (an optics cut-off).
+
+    Returns
+    -------
+    (n, size_px, size_px) float64 zero-mean images (arbitrary scale; the lowest frequency
+    the image holds is 1 / size_px cycles/px).
+    """
+    if beta < 0 or not 0 < cutoff_cyc_px <= 0.5:
+        raise ValueError(f"beta must be >= 0 and cutoff within (0, 0.5], got {beta}, "
+                         f"{cutoff_cyc_px}")
+    fy = sfft.fftfreq(size_px)[:, None]
+    fx = sfft.rfftfreq(size_px)[None, :]
+    f = np.hypot(fy, fx)
+    f[0, 0] = 1.0
+    amp = f ** (-beta / 2.0) * (f < cutoff_cyc_px)
+    amp[0, 0] = 0.0
+    shape = (n, *amp.shape)
+    spec = (rng.normal(size=shape) + 1j * rng.normal(size=shape)) * amp
+    return sfft.irfft2(spec, s=(size_px, size_px))

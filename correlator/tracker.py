@@ -105,7 +105,7 @@ class BlockTracker:
         return type(res)(shift, res.valid & inside, np.where(inside, res.peak, 0.0),
                            np.where(inside[:, None], res.crlb, np.inf),
                            np.where(inside, res.p_false, 1.0),
-                           np.where(inside, res.p_wrong, 1.0))
+                           np.where(inside, res.p_wrong, 1.0), res.precise)
 
     def _warped(self, frame, flow, sel, rng, index) -> ShiftResult:
         """:meth:`update` through a predicted flow (see there)."""
@@ -129,4 +129,4 @@ class BlockTracker:
         return type(res)(shift, res.valid & inside, np.where(inside, res.peak, 0.0),
                            np.where(inside[:, None], res.crlb, np.inf),
                            np.where(inside, res.p_false, 1.0),
-                           np.where(inside, res.p_wrong, 1.0))
+                           np.where(inside, res.p_wrong, 1.0), res.precise)

@@ -131,7 +131,7 @@ def test_texture_pairs_recovered_noise_free(subpixel):
 def test_single_pass_mode_is_close_and_shares_the_reference_spectrum():
     ref, cur, d = texture_pairs(40, 128, np.random.default_rng(22), texture="strong", snr=20)
     fast = measure_shift(ref, cur, rewindow=False)
-    precise = measure_shift(ref, cur)
+    precise = measure_shift(ref, cur, rewindow=True)
     assert fast.valid.all() and precise.valid.all()
     e_fast = np.sqrt(np.mean((fast.shift - d) ** 2))
     e_precise = np.sqrt(np.mean((precise.shift - d) ** 2))
@@ -147,15 +147,17 @@ def test_threads_give_the_same_answer_as_one_thread():
 
 
 def test_crlb_agrees_with_the_monte_carlo_spread():
-    """One texture, 300 noise draws at SNR 10: the spread of the estimates matches both the
-    predicted ``crlb`` and the textbook bound 2 sigma^2 (sum g g^T)^-1 within 30 %."""
+    """One texture, 300 noise draws at SNR 10: the spread of the precise path's estimates
+    matches both the predicted ``crlb`` and the textbook bound 2 sigma^2 (sum g g^T)^-1
+    within 30 %. (The default path keeps the first pass on this texture: its spread is
+    1.29-1.34x the bound, see ``tests/test_correlator_adaptive.py``.)"""
     rng = np.random.default_rng(24)
     ref, cur, d, clean = texture_pairs(1, 128, rng, texture="strong", return_clean=True)
     cur_clean = cur[0]
     n, sigma = 300, 10.0
     refs = clean[0][None] + rng.normal(0, sigma, (n, 128, 128))
     curs = cur_clean[None] + rng.normal(0, sigma, (n, 128, 128))
-    res = measure_shift(refs, curs)
+    res = measure_shift(refs, curs, rewindow=True)
     assert res.valid.all()
     spread = (res.shift - d[0]).std(axis=0)
     bias = np.abs((res.shift - d[0]).mean(axis=0))

@@ -151,7 +151,8 @@ def method_table(n: int, block_px: int, snr: float, texture: str, rng, with_peer
     crlb = crlb_px(clean, MEAN_LEVEL / snr)
     corr = correlation_bound_px(clean, MEAN_LEVEL / snr)
     rows_in = {
-        "imcsim jtc + fourier (precise)": ours(),
+        "imcsim jtc + fourier (default)": ours(),
+        "imcsim jtc + fourier (precise)": ours(rewindow=True),
         "imcsim jtc + fourier (1 FFT/block)": ours(rewindow=False),
         "imcsim jtc + gradient (Lucas-Kanade)": ours(subpixel="gradient"),
         "imcsim jtc + centre of mass (paper)": ours(subpixel="com"),
@@ -238,8 +239,8 @@ def speed_table(rng, repeats: int = 7, block_px: int = 128, n_track: int = 64,
     rt, ct, pt = ref[:n_track], cur[:n_track], pred[:n_track]
     for threads in sorted({cores, 1}, reverse=True):
         workers = -1 if threads == cores else 1
-        for rewindow in (False, True):
-            mode = "precise" if rewindow else "1 FFT/block"
+        for rewindow in (False, None, True):
+            mode = {None: "default", True: "precise", False: "1 FFT/block"}[rewindow]
             for trusted in (False, True):
                 c = Correlator(rt, rewindow=rewindow, workers=workers,
                                trust_prediction_px=1.0 if trusted else None)
@@ -249,8 +250,8 @@ def speed_table(rng, repeats: int = 7, block_px: int = 128, n_track: int = 64,
                         else "integer search")
                 add(f"imcsim tracking, {mode}", "tracking", threads,
                     _rates(call, n_track, repeats), note)
-        for rewindow in (False, True):
-            mode = "precise" if rewindow else "1 FFT/block"
+        for rewindow in (False, None, True):
+            mode = {None: "default", True: "precise", False: "1 FFT/block"}[rewindow]
             add(f"imcsim measure_shift, {mode}", "independent pairs", threads,
                 _rates(lambda rw=rewindow, wk=workers: measure_shift(
                     ref, cur, rewindow=rw, workers=wk), n_pairs, repeats),
@@ -312,7 +313,8 @@ def natural_tables(n: int, rng, block_px: int = 128) -> dict:
                                      return_clean=True)
     bound = float(np.sqrt(np.mean(crlb_px(clean, MEAN_LEVEL / 1.6) ** 2)))
     corr = float(np.sqrt(np.mean(correlation_bound_px(clean, MEAN_LEVEL / 1.6) ** 2)))
-    est = {"imcsim (default, precise)": ours(), "imcsim 1 FFT/block": ours(rewindow=False),
+    est = {"imcsim (default)": ours(), "imcsim precise": ours(rewindow=True),
+           "imcsim 1 FFT/block": ours(rewindow=False),
            **peers(1, hann=None)}
     snr16 = []
     for name, fn in est.items():

@@ -49,7 +49,8 @@ def _run(d: dict):
     """(models, plant, loop result, links) of one scenario."""
     m = build_models(parse_scenario(d))
     plant = build_plant(m)
-    parts = build_loop(m, None, float(np.mean(plant.sigma_px)))
+    sigma = float(np.mean(plant.sigma_px)) if hasattr(plant, "sigma_px") else None
+    parts = build_loop(m, None, sigma)
     res = simulate(plant, parts.estimator, parts.controller, parts.actuator, parts.transport,
                    parts.timeline, enabled=m.scenario.compensation.enabled,
                    supervisor=parts.supervisor)

@@ -51,11 +51,14 @@ class AnalyticPlant:
                  samples: int = 8, deform_px_per_s: np.ndarray | None = None,
                  noise_scale: float = 1.0, nominal_px: MotionFn | None = None,
                  field_nominal_px: MotionFn | None = None, chain: bool = False,
-                 shared_fraction: float = SHARED_FRACTION):
+                 shared_fraction: float = SHARED_FRACTION,
+                 predict_between: Callable[[int, int], tuple[np.ndarray, np.ndarray]]
+                 | None = None):
         if not 0.0 <= shared_fraction <= 0.5:
             raise ValueError(f"shared_fraction must be in [0, 0.5], got {shared_fraction}")
         self.chain = bool(chain)
         self.shared_fraction = float(shared_fraction)
+        self.predict_between = predict_between
         self.centers_px = np.atleast_2d(np.asarray(centers_px, dtype=np.float64))
         self.n_blocks = len(self.centers_px)
         self.sigma_px = np.broadcast_to(np.asarray(sigma_px, dtype=np.float64),
@@ -85,8 +88,17 @@ class AnalyticPlant:
         t0 = float(self.frame_t_s[k])
         self.stage_mean[k] = stage.mean(t0, t0 + self.exposure_s)
         r = self.ref
+        pred, field = self.nominal[k] - self.nominal[r], self.field_nominal[k] - \
+            self.field_nominal[r]
         truth = (self.motion_mean[k] - self.motion_mean[r]
                  - (self.stage_mean[k] - self.stage_mean[r])[None, :])
+        if self.chain and self.predict_between is not None and r != k:
+            # a chain measures the content under the blocks in frame r, not the ground they
+            # saw at the start: its own prediction, the same jitter (a rotation)
+            now, now_field = self.predict_between(r, k)
+            truth = truth - pred + now
+            pred, field = np.asarray(now, dtype=np.float64), np.asarray(now_field,
+                                                                        dtype=np.float64)
         shift = truth + self._noise(k, r) * (self.sigma_px * self.noise_scale)
         on = np.asarray(blocks, dtype=bool)
         dt = float(self.frame_t_s[k] - self.frame_t_s[r])
@@ -97,8 +109,7 @@ class AnalyticPlant:
             sigma_px=np.where(on[:, None], np.maximum(self.sigma_px, 1e-12), np.inf),
             valid=on.copy(), peak=np.where(on, np.inf, 0.0),
             deform_px=self.deform_px_per_s * dt, leaving=np.full(self.n_blocks, self.chain),
-            predicted_px=self.nominal[k] - self.nominal[r],
-            field_predicted_px=self.field_nominal[k] - self.field_nominal[r])
+            predicted_px=pred, field_predicted_px=field)
 
     def _frame_draw(self, k: int) -> np.ndarray:
         """nu_k (B, 2): frame k's own noise draw (shared by its links in a chain)."""

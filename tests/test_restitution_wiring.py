@@ -48,7 +48,7 @@ def test_the_analytic_plant_chains_and_its_first_baseline_is_the_loops_own():
     # increment, block by block: their means agree to rounding
     rec = res.record
     k = np.arange(1, len(m.frame_t_s))
-    pred = plant.nominal[k] - plant.nominal[k - 1]
+    pred = np.stack([plant.predict_between(int(i) - 1, int(i))[0] for i in k])
     stage = plant.stage_mean[k] - plant.stage_mean[k - 1]
     w = 1.0 / plant.sigma_px**2  # (B, 2): the link is the blocks' inverse-variance mean
     loop_d = ((rec.shift_px[k] - pred + stage[:, None, :]) * w).sum(axis=1) / w.sum(axis=0)

@@ -350,10 +350,19 @@ def analytic_plant(m: Models, sigma_px) -> AnalyticPlant:
     def field_nominal(t: np.ndarray) -> np.ndarray:
         return cam.image_motion_px(ground[-1:], t, t0, nominal=True)[:, 0]
 
+    zero = np.zeros(2)
+
+    def between(r: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """The chain's prediction from frame r to k of the content under the blocks and the
+        field point in frame r (as the image plants predict it)."""
+        mo = predicted_px(m, pts, r, k, zero, zero)
+        return mo[:-1], mo[-1]
+
     return AnalyticPlant(motion, centers, sigma_px, m.frame_t_s, m.exposure_s,
                          seed=tuple(streams.key(m.scenario.seed, "analytic")),
                          samples=m.scenario.metrics.samples_per_frame, nominal_px=nominal,
-                         field_nominal_px=field_nominal, chain=m.chain)
+                         field_nominal_px=field_nominal, chain=m.chain,
+                         predict_between=between if m.chain else None)
 
 
 def build_plant(m: Models):

@@ -104,6 +104,25 @@ class FreeConfig(_Model):
         ("none",), min_length=1, description="ground processing: none, or correction by the "
         "motion record (a geometry-only product)")
 
+    @field_validator("frame_rate_hz", "bandwidth_hz", "piezo_resonance_hz", "piezo_stroke_px",
+                     mode="before")
+    @classmethod
+    def _range_or_list(cls, v):
+        if isinstance(v, dict):
+            try:
+                return RangeConfig.model_validate(v)
+            except ValidationError as e:
+                first = e.errors()[0]
+                where = ".".join(str(p) for p in first["loc"])
+                msg = first["msg"].removeprefix("Value error, ")
+                raise ValueError(f"{where + ': ' if where else ''}{msg} (a range is "
+                                 "{min, max, n, scale})") from None
+        if isinstance(v, int | float):
+            return (v,)
+        if not isinstance(v, list | tuple):
+            raise ValueError("give a list of values or a range {min, max, n, scale}")
+        return v
+
     @field_validator("frame_rate_hz", "bandwidth_hz", "piezo_resonance_hz", "piezo_stroke_px")
     @classmethod
     def _positive(cls, v):
@@ -388,8 +407,9 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
                      object)
     rows, cols_px = base.camera.tracker.rows, base.camera.tracker.cols
     grid_ok = nb <= np.floor(rows / b) * np.floor(cols_px / b)
-    peak = dist.open_peak_px().max()
-    stroke_ok = (stage != "piezo") | (stroke >= 1.2 * peak)
+    # the stroke spans -stroke / 2 .. stroke / 2 about frame 0's position; 10 % to spare
+    peak = dist.open_peak_px(base.duration_s, 0.5 / rate0).max()
+    stroke_ok = (stage != "piezo") | (stroke >= 2.2 * peak)
     extra = np.stack([np.where(ok, np.inf, -np.inf), np.where(grid_ok, np.inf, -np.inf),
                       np.where(stroke_ok, np.inf, -np.inf)], 1)
     allm = np.concatenate([marg, extra], 1)

@@ -117,11 +117,17 @@ class Disturbance:
         return cls(np.array(ax, int), np.array(fs, float), np.array(amps, float),
                    np.array(ph, float), f, psd)
 
-    def open_peak_px(self) -> np.ndarray:
-        """An upper figure of the open-loop motion per axis (sum of amplitudes + 3 sigma), px."""
-        peak = np.zeros(2)
-        np.add.at(peak, self.sin_axis, self.sin_a_px)
-        return peak + 3.0 * np.sqrt(np.trapezoid(self.rnd_psd_px2_hz, self.rnd_f_hz, axis=0))
+    def open_peak_px(self, duration_s: float, t_ref_s: float = 0.0) -> np.ndarray:
+        """The open-loop motion's largest excursion from its value at ``t_ref_s`` (frame 0,
+        the stage's zero) over the run, per axis, plus 3 sigma of the random terms (px): what
+        half of a stage's stroke must hold."""
+        t = np.linspace(0.0, duration_s, 20001)
+        r = np.zeros((len(t), 2))
+        for a, f, p, k in zip(self.sin_a_px, self.sin_f_hz, self.sin_phase_rad,
+                              self.sin_axis, strict=True):
+            r[:, k] += a * (np.sin(2 * np.pi * f * t + p) - np.sin(2 * np.pi * f * t_ref_s + p))
+        rnd = np.sqrt(np.trapezoid(self.rnd_psd_px2_hz, self.rnd_f_hz, axis=0))
+        return np.abs(r).max(axis=0) + 3.0 * np.sqrt(2.0) * rnd
 
 
 @dataclass(frozen=True)

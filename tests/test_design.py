@@ -44,9 +44,9 @@ def _base() -> dict:
 
 def _design(**over) -> dict:
     d = {"name": "toy", "base": _base(), "tracker_crlb_px": 0.02,
-         "requirements": {"with_compensation.rms_total_px": {"max": 0.05}},
+         "requirements": {"with_compensation.rms_total_px": {"max": 0.2}},
          "free": {"frame_rate_hz": [50, 100], "block_px": [16, 32], "n_blocks": [1, 4],
-                  "controller": ["integrator"], "bandwidth_hz": [2, 5],
+                  "controller": ["integrator"], "bandwidth_hz": [3, 10],
                   "stage": ["none", "ideal"]},
          "verify": {"designs": 1, "seeds": 1}}
     d.update(over)
@@ -146,10 +146,10 @@ def test_search_choice_equals_an_exhaustive_evaluation_on_a_reduced_space():
         total = np.sqrt(sum(x**2 for x in p.rms_det_px) + 2 * (p.noise_gain * sigma) ** 2)
         assert total == pytest.approx(r["predicted"]["with_compensation.rms_total_px"],
                                       rel=1e-9)
-        if p.ok and (0.05 - total) / 0.05 >= 0.25 and r["cost"] < best_cost - 1e-12:
+        if p.ok and (0.2 - total) / 0.2 >= 0.25 and r["cost"] < best_cost - 1e-12:
             best, best_cost = i, r["cost"]
-    chosen, _ = choose(c, 0.25)
-    assert chosen == best
+    chosen, why = choose(c, 0.25)
+    assert best is not None and chosen == best, why
 
 
 @pytest.mark.parametrize("change, words", [

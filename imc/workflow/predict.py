@@ -2,8 +2,11 @@
 models imcsim already has; what `imc design` searches with.
 
 - The loop (:class:`compensation.analytic.LoopModel`, built here as
-  :func:`imc.wiring.build.build_loop` builds it): each jitter sinusoid's residual is its
-  amplitude times the rejection |S(f)| (phase arg S); a random (PSD) term's variance is
+  :func:`imc.wiring.build.build_loop` builds it): the sinusoids' residual is the linear loop
+  run from the first frame (:func:`sinusoid_residual`: the commands through the loop's
+  transfer, the stage's held-command response summed: acquisition and the ripple between
+  commands included, which |S(f)| alone, the fundamental, misses); a random (PSD) term's
+  variance is
   the integral of PSD |S|^2; the tracker's white error of sigma per frame gives the loop's
   noise RMS (:meth:`LoopModel.noise_rms_px`, linear in sigma). A Kalman predictor with a
   stated ``bandwidth_hz`` has a noise-independent gain (its process noise scales with
@@ -259,7 +262,6 @@ def predict_loop(choice: LoopChoice, base: Scenario, dist: Disturbance,
     n_win = max(1, int(np.floor((end - start) / window + 1e-9)))
     t = start + (np.arange(n_win * samples_per_window) + 0.5) * window / samples_per_window
     if model is None:
-        s = np.ones(len(dist.sin_f_hz), complex)
         s_rnd = np.ones(len(dist.rnd_f_hz))
         ok, why, noise, lock_s = True, "", 0.0, 0.0
     else:
@@ -273,19 +275,11 @@ def predict_loop(choice: LoopChoice, base: Scenario, dist: Disturbance,
         if not ok:
             nan2 = (np.nan, np.nan)
             return LoopPrediction(False, why, nan2, nan2, np.nan, nan2, np.inf)
-        s = model.rejection(dist.sin_f_hz) if len(dist.sin_f_hz) else np.zeros(0, complex)
         s_rnd = np.abs(model.rejection(dist.rnd_f_hz)) ** 2
         noise = model.noise_rms_px(1.0, f_max_factor=4.0, n_points=1024)
         lock_s = (float(analytic_lock_time(model, band=0.05, max_s=60.0).lock_s) if lock
                   else np.nan)
-    amp = dist.sin_a_px * np.abs(s)
-    phase = dist.sin_phase_rad + np.angle(s)
-    r = np.zeros((len(t), 2))
-    t_ref = 0.5 * tracker_exposure_s(base, choice.rate_hz)  # frame 0: the open loop's zero
-    for a, f, p, k in zip(amp, dist.sin_f_hz, phase, dist.sin_axis, strict=True):
-        r[:, k] += a * np.sin(2 * np.pi * f * t + p)
-        if model is None:
-            r[:, k] -= a * np.sin(2 * np.pi * f * t_ref + p)
+    r = sinusoid_residual(model, dist, end, t, tracker_exposure_s(base, choice.rate_hz))
     rms = np.mean(r**2, axis=0)
     # each exposure about its own mean is what blurs; the metric's phase is relative to 0
     win = r.reshape(n_win, samples_per_window, 2)
@@ -294,6 +288,60 @@ def predict_loop(choice: LoopChoice, base: Scenario, dist: Disturbance,
                if len(dist.rnd_f_hz) > 1 else np.zeros(2))
     return LoopPrediction(ok, why, tuple(np.sqrt(rms)), tuple(var_rnd), float(noise),
                           tuple(mtf), lock_s)
+
+
+def _exposure_means(dist: Disturbance, t0_s: np.ndarray, exposure_s: float) -> np.ndarray:
+    """The sinusoids' mean over [t0, t0 + exposure] (N, 2) px: what the tracker measures."""
+    w = 2 * np.pi * dist.sin_f_hz
+    wt = 1j * w * exposure_s
+    avg = np.where(np.abs(wt) > 1e-12, (np.exp(wt) - 1.0) / np.where(wt == 0, 1, wt), 1.0)
+    rot = np.exp(1j * (w[None, :] * t0_s[:, None] + dist.sin_phase_rad[None, :]))
+    out = np.zeros((len(t0_s), 2))
+    for i, k in enumerate(dist.sin_axis):
+        out[:, k] += (dist.sin_a_px[i] * avg[i] * rot[:, i]).imag
+    return out
+
+
+def sinusoid_residual(model, dist: Disturbance, duration_s: float, t_s: np.ndarray,
+                      exposure_s: float) -> np.ndarray:
+    """The residual (T, 2) px of the sinusoids at times t_s, the loop run linearly from the
+    first frame: each frame's exposure mean against frame 0's (the tracker's reference)
+    through the command transfer C z^-n / (1 + C G) (:meth:`LoopModel.plant_polys`), the
+    stage's response to the held commands (:attr:`LoopModel.pulse`, its trajectory) summed,
+    and the continuous motion minus the stage. Exact for the linear loop: acquisition,
+    the stage's staircase or ramp between commands and its dynamics included. ``model``
+    None: the open loop (the motion against frame 0)."""
+    from scipy.signal import lfilter
+
+    from compensation.controllers import polymul
+
+    d_t = np.zeros((len(t_s), 2))
+    for a, f, p, k in zip(dist.sin_a_px, dist.sin_f_hz, dist.sin_phase_rad, dist.sin_axis,
+                          strict=True):
+        d_t[:, k] += a * np.sin(2 * np.pi * f * t_s + p)
+    d0 = _exposure_means(dist, np.zeros(1), exposure_s)[0]
+    if model is None:
+        return d_t - d0
+    period = model.period_s
+    n = int(np.ceil(duration_s / period)) + 1
+    d_k = _exposure_means(dist, np.arange(n) * period, exposure_s) - d0
+    b, a, predictor = model.controller_tf()
+    g, g_pq = model.plant_polys()
+    n_del, _ = model.timing
+    num = np.concatenate([np.zeros(n_del), b])
+    lp = polymul(b, g_pq if predictor else g)
+    den = np.zeros(max(len(a), len(lp)))
+    den[: len(a)] += a
+    den[: len(lp)] += lp
+    u = lfilter(num, den, d_k, axis=0)  # the command at each tick
+    _, _, th, sh, interp = model.pulse
+    lag = t_s[:, None] - np.arange(n)[None, :] * period
+    if interp == "previous":
+        idx = np.searchsorted(th, lag, side="right") - 1
+        h = np.where((idx >= 0) & (lag <= th[-1]), sh[np.clip(idx, 0, len(sh) - 1)], 0.0)
+    else:
+        h = np.interp(lag, th, sh, left=0.0, right=0.0)
+    return d_t - d0 - h @ u
 
 
 @lru_cache(maxsize=64)

@@ -44,6 +44,7 @@ from imc.workflow.predict import (
     LoopChoice,
     actuator_block,
     controller_block,
+    nominal_line_rate_hz,
     predict_loops,
     record_geometry_unit,
 )
@@ -403,13 +404,17 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
         predicted[path] = v
         margins.append(m)
     marg = np.stack(margins, 1)
-    names = np.array([p for p, _ in reqs] + ["loop stability", "block grid", "stage stroke"],
+    names = np.array([p for p, _ in reqs] + ["loop stability", "block grid / frame overlap",
+                                          "stage stroke"],
                      object)
     rows, cols_px = base.camera.tracker.rows, base.camera.tracker.cols
     grid_ok = nb <= np.floor(rows / b) * np.floor(cols_px / b)
     # the stroke spans -stroke / 2 .. stroke / 2 about frame 0's position; 10 % to spare
     peak = dist.open_peak_px(base.duration_s, 0.5 / rate0).max()
     stroke_ok = (stage != "piezo") | (stroke >= 2.2 * peak)
+    if base.attitude.mode != "target":  # a scanning tracker chains frames: they must overlap
+        flow = nominal_line_rate_hz(base) / rate  # px per frame along the rows
+        grid_ok &= flow + b <= rows
     extra = np.stack([np.where(ok, np.inf, -np.inf), np.where(grid_ok, np.inf, -np.inf),
                       np.where(stroke_ok, np.inf, -np.inf)], 1)
     allm = np.concatenate([marg, extra], 1)

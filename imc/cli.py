@@ -705,6 +705,17 @@ def design(
             table.add_row(p, f"{pv:.4g}", ", ".join(f"{x:.4g}" for x in v["measured"][p]),
                           f"{100 * v['relative_error'][p]:.0f} %")
         out.print(table)
+    if res.verified:
+        errs = [e for v in res.verified for e in v["margin_error"].values()
+                if math.isfinite(e)]
+        missed = [v["design"] for v in res.verified if not v["all_seeds_pass"]]
+        worst = max(errs) if errs else math.nan
+        out.print(f"validated margin error {worst:.3f} (|predicted - measured margin|, the "
+                  f"worst); the chosen design's predicted margin "
+                  f"{res.candidates.worst[res.chosen]:.3f}"
+                  + ("; designs that MISSED in a full run: " + "; ".join(missed)
+                     if missed else "; every verified design met every requirement"),
+                  highlight=False, soft_wrap=True)
     out.print("wrote " + ", ".join(res.files))
     if res.chosen is None:
         _fail(closest_line(res.candidates), code=1)

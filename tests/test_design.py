@@ -203,4 +203,5 @@ def test_the_chosen_design_yaml_validates_and_runs(tmp_path):
     metrics, _ = run_scenario(parse_scenario(short), tmp_path / "run", rerun=False)
     outcomes = judge(sc.expect, metrics)
     assert outcomes and outcomes[0].value != "missing"
-    assert (tmp_path / "out" / "design.html").read_text().count("base64") >= 1
+    page = (tmp_path / "out" / "design.html").read_text()
+    assert page.count("base64") >= 1 and "Sensitivity to frame_rate_hz" in page

@@ -588,13 +588,17 @@ def verify(design: Design, c: Candidates, picks: list[int], out_dir: Path,
             passed.append(ok)
             log(f"  design {rank} seed {s}: {'meets' if ok else 'MISSES'} its requirements "
                 f"({time.perf_counter() - t0:.1f} s)")
-        err = {}
-        for p in cfg.requirements:
+        err, merr = {}, {}
+        for p, b in cfg.requirements.items():
             pv, mv = r["predicted"][p], float(np.nanmean(measured[p]))
             err[p] = abs(pv - mv) / max(abs(mv), 1e-12) if math.isfinite(mv) else math.nan
+            merr[p] = abs(float(margin_of(p, b, np.array(pv)))
+                          - float(margin_of(p, b, np.array(mv)))) if math.isfinite(mv) \
+                else math.nan
         rows.append({"index": i, "rank": rank, "design": describe(r), "cost": r["cost"],
                      "predicted": r["predicted"], "measured": measured,
-                     "relative_error": err, "all_seeds_pass": all(passed),
+                     "relative_error": err, "margin_error": merr,
+                     "all_seeds_pass": all(passed),
                      "seeds_passed": int(sum(passed))})
     return rows
 
@@ -626,9 +630,30 @@ def _yaml_text(mapping: dict, header: str) -> str:
     return "".join(f"# {line}\n" for line in header.splitlines()) + body
 
 
+def sensitivity(c: Candidates, i: int) -> dict[str, list[dict]]:
+    """The chosen design's sensitivity to each free parameter: the candidates that differ
+    from candidate i in that parameter alone, with their worst margin, cost and limit."""
+    out = {}
+    for name, col in c.columns.items():
+        same = np.ones(len(c), bool)
+        for other, oc in c.columns.items():
+            if other != name:
+                same &= oc == oc[i]
+        idx = np.flatnonzero(same)
+        if len(idx) > 1:
+            idx = idx[np.argsort(col[idx].astype(str) if col.dtype == object else col[idx],
+                                 kind="stable")]
+            out[name] = [{"value": _plain(col[j]), "worst_margin": float(c.worst[j]),
+                          "cost": float(c.cost[j]), "limiting": str(c.limiting[j])}
+                         for j in idx]
+    return out
+
+
 def design_json(design: Design, c: Candidates, front: np.ndarray, chosen: int | None,
                 reason: str, verified: list[dict], crlb_px: float) -> dict:
     """The design's record (design.json)."""
+    errs = [e for v in verified for e in v["margin_error"].values() if math.isfinite(e)]
+    validated = max(errs) if errs else None
     return {
         "name": design.config.name,
         "requirements": {p: b.text() for p, b in design.config.requirements.items()},
@@ -640,11 +665,18 @@ def design_json(design: Design, c: Candidates, front: np.ndarray, chosen: int | 
         "candidates": len(c), "feasible": int(c.feasible.sum()), "loops": c.n_loops,
         "eval_s": c.eval_s, "loop_s": c.loop_s,
         "chosen": None if chosen is None else c.row(chosen),
+        "sensitivity": {} if chosen is None else sensitivity(c, chosen),
         "reason": reason if chosen is not None else closest_line(c),
         "pareto": [c.row(int(i)) for i in front],
         "limiting_counts": {str(k): int(v) for k, v in zip(
             *np.unique(c.limiting.astype(str), return_counts=True), strict=True)},
         "verified": verified,
+        # the predictors' validated error in margin units (|predicted - measured margin|,
+        # the worst over the verified designs and requirements) and whether the chosen
+        # design's predicted margin is at least that
+        "validated_margin_error": validated,
+        "chosen_margin_covers_validated_error": (None if chosen is None or validated is None
+                                                 else bool(c.worst[chosen] >= validated)),
     }
 
 
@@ -697,6 +729,13 @@ def design_html(record: dict, c: Candidates, front: np.ndarray, chosen: int | No
                          f"{ch['predicted'][p]:.4g}</td><td>"
                          f"{c.margins[chosen, k]:.2f}</td></tr>")
         parts.append("</table>")
+    for name, rows in record.get("sensitivity", {}).items():
+        parts.append(f"<h3>Sensitivity to {esc(name)} (the rest as chosen)</h3><table><tr>"
+                     "<th>value</th><th>worst margin</th><th>cost</th><th>limited by</th>"
+                     "</tr>" + "".join(
+                         f"<tr><td>{esc(str(r['value']))}</td><td>{r['worst_margin']:.2f}"
+                         f"</td><td>{r['cost']:.3g}</td><td>{esc(r['limiting'])}</td></tr>"
+                         for r in rows) + "</table>")
     if record["verified"]:
         parts.append("<h2>Predicted against measured (full runs)</h2><table><tr><th>design"
                      "</th><th>requirement</th><th>predicted</th><th>measured (seeds)</th>"

@@ -205,3 +205,17 @@ def test_the_chosen_design_yaml_validates_and_runs(tmp_path):
     assert outcomes and outcomes[0].value != "missing"
     page = (tmp_path / "out" / "design.html").read_text()
     assert page.count("base64") >= 1 and "Sensitivity to frame_rate_hz" in page
+
+
+def test_verification_reports_predicted_against_measured(tmp_path):
+    d = load_design(_write(tmp_path, _design()))
+    res = run_design(d, tmp_path / "out", verify_runs=True, log=lambda s: None)
+    (v,) = res.verified  # verify: 1 design, 1 seed
+    measured = v["measured"]["with_compensation.rms_total_px"]
+    assert len(measured) == 1 and np.isfinite(measured[0])
+    assert np.isfinite(v["margin_error"]["with_compensation.rms_total_px"])
+    import json
+
+    rec = json.loads((tmp_path / "out" / "design.json").read_text())
+    assert rec["validated_margin_error"] is not None
+    assert "Predicted against measured" in (tmp_path / "out" / "design.html").read_text()

@@ -219,3 +219,13 @@ def test_verification_reports_predicted_against_measured(tmp_path):
     rec = json.loads((tmp_path / "out" / "design.json").read_text())
     assert rec["validated_margin_error"] is not None
     assert "Predicted against measured" in (tmp_path / "out" / "design.html").read_text()
+
+
+def test_the_refusal_names_every_supported_path():
+    from imc.workflow.predict import SUPPORTED
+
+    d = _design(requirements={"loop.commands": {"max": 1}})
+    with pytest.raises(ScenarioError) as e:
+        parse_design(d)
+    for path in SUPPORTED:
+        assert path.removesuffix(".0").removesuffix(".1") in str(e.value)

@@ -190,7 +190,10 @@ class DesignConfig(_Model):
         for path in v:
             if path not in SUPPORTED:
                 raise ValueError(f"{path!r} has no predictor; supported: "
-                                 + ", ".join(SUPPORTED))
+                                 "with_compensation.rms_total_px, with_compensation.rms_px "
+                                 "(.0 row, .1 col), with_compensation.mtf_nyquist_worst (.0, "
+                                 ".1), loop.lock.analytic_s, product.geometry.open.after.rms_px"
+                                 ", product.geometry.open.affine.rms_px")
         return v
 
 

@@ -4,10 +4,10 @@ Commands: ``info`` (versions, the Mitsuba variant), ``validate`` (check a scenar
 its size, the loop's margins; renders nothing), ``run`` (one scenario end to end: metrics,
 tracks, report, Rerun recording), ``metrics`` (a run's metrics table), ``loop`` (the loop's
 analytic and measured rejection), ``sweep`` (a parameter sweep on Dask), ``check`` (every
-scenario against its ``expect:`` section, JUnit), ``report`` (a run's or sweep's report
-again), ``view`` (the Rerun viewer), ``device-emulator`` / ``device-read`` (the hardware
-correlator's serial protocol on a pseudo-terminal), ``bench correlator`` (the correlator
-against its bounds and its peers).
+scenario against its ``expect:`` section, JUnit), ``design`` (requirements in, the cheapest
+configuration out), ``report`` (a run's or sweep's report again), ``view`` (the Rerun
+viewer), ``device-emulator`` / ``device-read`` (the hardware correlator's serial protocol on
+a pseudo-terminal), ``bench correlator`` (the correlator against its bounds and its peers).
 
 Every command ends in one line on bad input (exit 2: the scenario, a file or an argument,
 named with the fix); an internal error (a bug) prints one line saying so and where the full
@@ -663,6 +663,62 @@ def sweep(
     if not no_report:
         files.append(str(write_sweep_report(out_dir)))
     out.print("wrote " + ", ".join(files))
+
+
+@app.command()
+@_guarded
+def design(
+    design_file: Path = typer.Argument(..., help="design YAML (base scenario, requirements, "
+                                       "free parameters, cost)"),
+    out_dir: Path = typer.Option(..., "--out", help="design folder (design.json, design.html"
+                                 ", the chosen design's scenario, verify*/ runs)"),
+    no_verify: bool = typer.Option(False, "--no-verify", help="skip the full runs of the "
+                                   "best designs"),
+    workers: int = typer.Option(2, "--workers", min=1, help="processes for the search"),
+) -> None:
+    """From requirements to the cheapest configuration that meets them: fast predictions of
+    every candidate, the Pareto front, the best few run in full; exit 1 when no candidate
+    meets every requirement (the closest one and what limits it in one line)."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from imc.workflow.design import closest_line, load_design, run_design
+
+    d = load_design(design_file)
+    out_dir = _out_dir(str(out_dir))
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TimeElapsedColumn(), console=err, transient=True) as prog:
+        task = prog.add_task("loops", total=None)
+
+        def progress(done: int, total: int) -> None:
+            prog.update(task, completed=done, total=total)
+
+        res = run_design(d, out_dir, verify_runs=not no_verify, progress=progress,
+                         log=lambda s: out.print(s, highlight=False, soft_wrap=True),
+                         workers=workers)
+    for v in res.verified:
+        table = Table(title=f"{v['design']}: predicted against measured "
+                      f"({v['seeds_passed']} of {len(next(iter(v['measured'].values())))} "
+                      "seeds meet every requirement)")
+        for col in ("requirement", "predicted", "measured (seeds)", "error"):
+            table.add_column(col)
+        for p, pv in v["predicted"].items():
+            table.add_row(p, f"{pv:.4g}", ", ".join(f"{x:.4g}" for x in v["measured"][p]),
+                          f"{100 * v['relative_error'][p]:.0f} %")
+        out.print(table)
+    if res.verified:
+        errs = [e for v in res.verified for e in v["margin_error"].values()
+                if math.isfinite(e)]
+        missed = [v["design"] for v in res.verified if not v["all_seeds_pass"]]
+        worst = max(errs) if errs else math.nan
+        out.print(f"validated margin error {worst:.3f} (|predicted - measured margin|, the "
+                  f"worst); the chosen design's predicted margin "
+                  f"{res.candidates.worst[res.chosen]:.3f}"
+                  + ("; designs that MISSED in a full run: " + "; ".join(missed)
+                     if missed else "; every verified design met every requirement"),
+                  highlight=False, soft_wrap=True)
+    out.print("wrote " + ", ".join(res.files))
+    if res.chosen is None:
+        _fail(closest_line(res.candidates), code=1)
 
 
 def _scenario_files(paths: list[Path]) -> list[Path]:

@@ -1,0 +1,231 @@
+"""`imc design`: the fast predictors against the time-domain loop, the search against an
+exhaustive evaluation, the one-line refusals and exit codes, and the chosen design's YAML
+validating and running."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from imc.cli import app
+from imc.scenario import ScenarioError, load_scenario, parse_scenario
+from imc.workflow.design import (
+    choose,
+    evaluate,
+    load_design,
+    pareto_front,
+    parse_design,
+    run_design,
+)
+from imc.workflow.predict import Disturbance, LoopChoice, loop_model, predict_loop
+
+ROOT = Path(__file__).resolve().parents[1]
+runner = CliRunner()
+
+
+def _base() -> dict:
+    """The quickstart on a smaller tile, analytic plant, 0.6 s, one pitch sinusoid."""
+    d = yaml.safe_load((ROOT / "scenarios" / "quickstart.yaml").read_text())
+    d["duration_s"] = 0.6
+    d["scene"]["size_m"] = 200
+    d["scene"]["texel_m"] = 0.5
+    d["camera"]["tracker"].update(rows=128, cols=128)
+    d["correlator"].update(block_px=32, n_blocks=4)
+    d["plant"] = {"fidelity": "analytic"}
+    d["metrics"]["blur_images"] = False
+    d.pop("expect")
+    return d
+
+
+def _design(**over) -> dict:
+    d = {"name": "toy", "base": _base(), "tracker_crlb_px": 0.02,
+         "requirements": {"with_compensation.rms_total_px": {"max": 0.2}},
+         "free": {"frame_rate_hz": [50, 100], "block_px": [16, 32], "n_blocks": [1, 4],
+                  "controller": ["integrator"], "bandwidth_hz": [3, 10],
+                  "stage": ["none", "ideal"]},
+         "verify": {"designs": 1, "seeds": 1}}
+    d.update(over)
+    return d
+
+
+def _simulate(model, amp_px: float, f_hz: float, sigma_px: float, seconds: float,
+              seed: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """(t, residual row) of the time-domain loop (compensation's simulate) on the analytic
+    plant: one block, a pitch sinusoid, white measurement noise sigma_px."""
+    from compensation.analytic_plant import AnalyticPlant, sinusoids
+    from compensation.estimators import MeanEstimator
+    from compensation.loop import Timeline, simulate
+    from compensation.transport import Transport
+
+    t_per = model.period_s
+    n = int(round(seconds / t_per))
+    frame_t = np.arange(n) * t_per
+    motion = sinusoids([(amp_px, f_hz, 0.0, 0)])
+    plant = AnalyticPlant(motion, np.zeros((1, 2)), sigma_px, frame_t, model.exposure_s,
+                          seed=(seed,), noise_scale=1.0 if sigma_px > 0 else 0.0)
+    tl = Timeline(frame_t, model.exposure_s, n * t_per, np.zeros((n, 2)), t_per)
+    res = simulate(plant, MeanEstimator(), model.controller, model.actuator,
+                   Transport(latency_s=model.latency_s), tl)
+    ts = np.arange(int(2.0 / t_per) * 8, n * 8) * t_per / 8 + t_per / 16  # after 2 s
+    r = amp_px * np.sin(2 * np.pi * f_hz * ts) - res.trajectory(ts)[:, 0]
+    return ts, r
+
+
+def _one_sine(f_hz: float, amp_px: float) -> dict:
+    b = _base()
+    b["attitude"]["jitter"]["sinusoids"] = [
+        {"axis": "pitch", "frequency_hz": f_hz, "amplitude_px": amp_px, "phase_deg": 0}]
+    b["duration_s"] = 6.0
+    b["camera"]["main_imager"]["start_s"] = 2.0  # the metrics' window: after the transient
+    return b
+
+
+@pytest.mark.parametrize("f_hz", [0.7, 3.0])
+def test_first_order_loop_on_a_sinusoid_matches_the_time_domain_loop(f_hz):
+    base = parse_scenario(_one_sine(f_hz, 1.0))
+    ch = LoopChoice(100.0, "integrator", 4.0, "ideal")
+    pred = predict_loop(ch, base, Disturbance.from_scenario(base))
+    model = loop_model(ch, base)
+    _, r = _simulate(model, 1.0, f_hz, 0.0, 6.0)
+    measured = float(np.sqrt(np.mean(r**2)))
+    # the loop rejects the sinusoid (open: 0.707 px); the prediction within 3 % of the run
+    assert measured < 0.5
+    assert pred.rms_det_px[0] == pytest.approx(measured, rel=0.03)
+
+
+def test_noise_gain_matches_the_time_domain_loop():
+    base = parse_scenario(_one_sine(0.5, 0.0))
+    ch = LoopChoice(100.0, "integrator", 8.0, "ideal")
+    pred = predict_loop(ch, base, Disturbance.from_scenario(base))
+    model = loop_model(ch, base)
+    sigma = 0.05
+    _, r = _simulate(model, 0.0, 0.5, sigma, 22.0)
+    measured = float(np.sqrt(np.mean(r**2)))
+    # the noise RMS differs from sigma by > 30 %; the prediction within 8 % (2000 frames)
+    assert abs(measured / sigma - 1.0) > 0.3
+    assert pred.noise_gain * sigma == pytest.approx(measured, rel=0.08)
+
+
+def test_pareto_front_and_choice_on_a_toy_problem_with_a_known_optimum():
+    rng = np.random.default_rng(5)
+    cost = rng.uniform(0, 10, 300)
+    margin = np.sqrt(cost) - 1.5 + rng.normal(0, 0.3, 300)  # dearer is better, noisily
+    front = pareto_front(cost, margin)
+    for i in range(300):  # brute force: dominated iff someone is cheaper-or-equal and better
+        dominated = np.any((cost <= cost[i]) & (margin > margin[i])
+                           | (cost < cost[i]) & (margin >= margin[i]))
+        assert (i in front) == (not dominated)
+
+    class C:  # the fields choose() reads
+        feasible = margin >= 0
+        worst = margin
+
+    C.cost = cost
+    i, _ = choose(C, 0.25)
+    ok = np.flatnonzero(margin >= 0.25)
+    assert i == ok[np.argmin(cost[ok])]
+
+
+def test_search_choice_equals_an_exhaustive_evaluation_on_a_reduced_space():
+    d = parse_design(_design())
+    c = evaluate(d)
+    assert len(c) == 2 * (2 * 1 + 1) * 2 * 2  # rates x (bw x ctl + none) x sizes x counts
+    # every candidate predicted again on its own, the cheapest meeting the bound picked
+    dist = Disturbance.from_scenario(d.base)
+    best, best_cost = None, np.inf
+    for i in range(len(c)):
+        r = c.row(i)
+        ch = LoopChoice(r["frame_rate_hz"], "integrator", r["bandwidth_hz"], r["stage"])
+        p = predict_loop(ch, d.base, dist, lock=False)
+        sigma = 0.02 * (32 / r["block_px"]) / np.sqrt(r["n_blocks"])
+        total = np.sqrt(sum(x**2 for x in p.rms_det_px) + 2 * (p.noise_gain * sigma) ** 2)
+        assert total == pytest.approx(r["predicted"]["with_compensation.rms_total_px"],
+                                      rel=1e-9)
+        if p.ok and (0.2 - total) / 0.2 >= 0.25 and r["cost"] < best_cost - 1e-12:
+            best, best_cost = i, r["cost"]
+    chosen, why = choose(c, 0.25)
+    assert best is not None and chosen == best, why
+
+
+@pytest.mark.parametrize("change, words", [
+    ({"requirements": {"tracker.rms_error_px": {"max": 0.1}}},
+     ["requirements", "supported", "with_compensation.rms_total_px"]),
+    ({"free": {"bandwidth_hz": {"min": 5, "max": 2}}}, ["free.bandwidth_hz", "max"]),
+    ({"free": {"stage": ["magnetic"]}}, ["free.stage"]),
+    ({"extra_field": 1}, ["extra_field", "unknown field"]),
+])
+def test_bad_design_is_one_line_naming_the_field(change, words):
+    d = _design()
+    d.update(change)
+    with pytest.raises(ScenarioError) as e:
+        parse_design(d)
+    text = str(e.value)
+    assert "\n" not in text
+    for w in words:
+        assert w in text
+
+
+def _write(tmp_path: Path, design: dict) -> Path:
+    p = tmp_path / "design.yaml"
+    p.write_text(yaml.safe_dump(design))
+    return p
+
+
+def test_an_infeasible_requirement_is_one_line_and_exit_1(tmp_path):
+    d = _design(requirements={"with_compensation.rms_total_px": {"max": 1e-5}})
+    res = runner.invoke(app, ["design", str(_write(tmp_path, d)), "--out",
+                              str(tmp_path / "out"), "--no-verify", "--workers", "1"])
+    assert res.exit_code == 1
+    line = [x for x in res.output.splitlines() if "no candidate" in x]
+    assert len(line) == 1 and "limited by with_compensation.rms_total_px" in line[0]
+    assert (tmp_path / "out" / "design.json").exists()
+
+
+def test_the_chosen_design_yaml_validates_and_runs(tmp_path):
+    from imc.pipeline import run_scenario
+    from imc.workflow.expect import judge
+
+    d = load_design(_write(tmp_path, _design()))
+    res = run_design(d, tmp_path / "out", verify_runs=False, log=lambda s: None)
+    assert res.exit_code == 0
+    yml = tmp_path / "out" / "toy_design.yaml"
+    res_v = runner.invoke(app, ["validate", str(yml)])
+    assert res_v.exit_code == 0, res_v.output
+    sc = load_scenario(yml)
+    assert "with_compensation.rms_total_px" in sc.expect
+    short = copy.deepcopy(yaml.safe_load(yml.read_text()))
+    short["duration_s"] = 0.4
+    metrics, _ = run_scenario(parse_scenario(short), tmp_path / "run", rerun=False)
+    outcomes = judge(sc.expect, metrics)
+    assert outcomes and outcomes[0].value != "missing"
+    page = (tmp_path / "out" / "design.html").read_text()
+    assert page.count("base64") >= 1 and "Sensitivity to frame_rate_hz" in page
+
+
+def test_verification_reports_predicted_against_measured(tmp_path):
+    d = load_design(_write(tmp_path, _design()))
+    res = run_design(d, tmp_path / "out", verify_runs=True, log=lambda s: None)
+    (v,) = res.verified  # verify: 1 design, 1 seed
+    measured = v["measured"]["with_compensation.rms_total_px"]
+    assert len(measured) == 1 and np.isfinite(measured[0])
+    assert np.isfinite(v["margin_error"]["with_compensation.rms_total_px"])
+    import json
+
+    rec = json.loads((tmp_path / "out" / "design.json").read_text())
+    assert rec["validated_margin_error"] is not None
+    assert "Predicted against measured" in (tmp_path / "out" / "design.html").read_text()
+
+
+def test_the_refusal_names_every_supported_path():
+    from imc.workflow.predict import SUPPORTED
+
+    d = _design(requirements={"loop.commands": {"max": 1}})
+    with pytest.raises(ScenarioError) as e:
+        parse_design(d)
+    for path in SUPPORTED:
+        assert path.removesuffix(".0").removesuffix(".1") in str(e.value)

@@ -1,10 +1,12 @@
 """Orbit propagation, Earth frames (WGS84), solar position and spacecraft attitude.
 
 - `kepler`: Keplerian orbits with J2 secular rates; `tle`: SGP4 from a two-line element set;
-  `aircraft`: straight, level flight;
+  `oem_orbit`: an ephemeris from a CCSDS OEM; `aircraft`: straight, level flight;
 - `frames`: ECI, ECEF and the local ENU frame; `sun`: the solar position;
 - `attitude`: nominal pointing, yaw steering and jitter; `jitter`: sinusoids, PSD draws,
-  wheel harmonics; `suspension`: the camera's mount between platform and camera.
+  wheel harmonics; `attitude_series`: measured attitude (CSV, CCSDS AEM) as the jitter, with
+  `ccsds` the CCSDS frames and times; `suspension`: the camera's mount between platform and
+  camera.
 
 Units: SI (m, s, rad) inside; angles in degrees only where a name says ``_deg``.
 Frames are described in ``docs/conventions.md``.

@@ -801,8 +801,10 @@ class CompensationConfig(_Model):
     actuator: ActuatorConfig = ActuatorConfig(kind="ideal")
     estimator: EstimatorConfig = EstimatorConfig(kind="motion_field")
     transport: TransportConfig = TransportConfig()
-    supervisor: SupervisorConfig | None = Field(None, description="an optional supervisor "
-                                                "block (none: the loop is not watched)")
+    supervisor: SupervisorConfig | None = Field(
+        SupervisorConfig(kind="residual"), description="the supervisor block (default: "
+        "residual, which holds the stage when the loop's measured residual, total or within "
+        "an exposure, exceeds the open loop's; null: the loop is not watched)")
     min_phase_margin_deg: float = Field(20.0, ge=0.0, le=90.0, description="a design with "
                                         "less phase margin is refused, deg")
     min_modulus_margin: float = Field(0.25, ge=0.0, le=1.0, description="a design whose "

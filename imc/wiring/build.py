@@ -496,7 +496,8 @@ def build_loop(m: Models, channel=None, plant_sigma_px: float | None = None) -> 
                           seed=tuple(streams.key(sc.seed, "drops")), channel=channel)
     # the values the wiring derives from the rest of the scenario; each block takes the ones
     # its class names in WIRED
-    wired = {"field_point_px": m.field_point_px, "ramp_s": period, "rate_hz": 1.0 / period}
+    wired = {"field_point_px": m.field_point_px, "ramp_s": period, "rate_hz": 1.0 / period,
+             "exposure_s": float(m.imager.integration_s())}  # the main imager's (supervisor)
     if comp.controller.option("feedforward"):
         wired["nominal_px"] = nominal_target(m)
     try:

@@ -771,9 +771,10 @@ class EstimatorConfig(BlockConfig):
 
 
 class SupervisorConfig(BlockConfig):
-    """An optional watch on the loop: residual (the residual's running RMS against the
-    pseudo-open-loop motion's; when the loop amplifies what it should reject it holds the
-    stage, opens the loop or de-rates the controller; its decisions go to metrics.json)."""
+    """A watch on the loop (on by default; null: none): residual (the residual's running RMS
+    against the pseudo-open-loop motion's, in total and within the main imager's exposures;
+    when the loop amplifies what it should reject it holds the stage, opens the loop or
+    de-rates the controller; its decisions go to metrics.json and are printed as warnings)."""
 
     ROLE: ClassVar[str] = "supervisor"
     kind: str = Field("residual", description="residual")

@@ -358,6 +358,15 @@ def _kinematic(order: int, dt: float, q: float) -> tuple[np.ndarray, np.ndarray]
     return phi, qd
 
 
+#: the default identification window in measurement periods: 0.128 s at 1 kHz (a line is
+#: followed within 0.12 s of the start), resolution rate / 128, lines looked for above 1.5 x
+#: that (11.7 Hz at 1 kHz: below, the kinematic states follow). Chosen on kHz runs with
+#: unlisted wheel lines at 30-75 Hz (fixed and swept 1 %/s), docs/loop.md.
+IDENTIFY_PERIODS = 128
+#: the longest default identification window, s (the window of earlier versions)
+IDENTIFY_MAX_S = 2.0
+
+
 @dataclass(frozen=True)
 class KalmanState:
     x: np.ndarray  # (2, n) state per axis
@@ -386,6 +395,12 @@ class KalmanPredictor:
         ``line_snr`` times the median power, at most ``max_lines`` in all, above 1.5 /
         window_s; :func:`find_lines`); a new oscillator starts from a least-squares fit and
         takes its part of the motion over from the kinematic states.
+    window_s : the identification's window, s; None: :data:`IDENTIFY_PERIODS` measurement
+        periods, at most :data:`IDENTIFY_MAX_S` (0.128 s at 1 kHz: a line is found within
+        0.12 s of the start; 1.28 s at 100 Hz; 2 s at 30 Hz). Its resolution is 1 / window_s
+        and lines below 1.5 / window_s (11.7 Hz at 1 kHz, where the kinematic states follow)
+        are not looked for. See :attr:`identification_window_s`.
+    every_s : the interval between identifications, s; None: half the window.
     line_bandwidth_hz : how fast a line's amplitude and phase may wander.
     line_amplitude_px : the amplitude a known line is expected to have (it scales the
         line's process noise; identified lines use their fitted amplitude).
@@ -398,7 +413,9 @@ class KalmanPredictor:
     notch : optional notch on the command (as the feedback kinds).
     rate_hz : the nominal measurement rate.
 
-    Lines nobody configured (all off by default: the predictor as it was, bit for bit):
+    Lines nobody configured (on by default since issue 35: the predictor finds, hands over,
+    follows and drops lines without being asked; ``handover: full``, ``track_gain: 0``,
+    ``prune_snr: null`` give the predictor as it was):
 
     handover : how a newly identified line's part is taken from the kinematic states:
         'full' (all of it: right for lines well below ``bandwidth_hz``) or 'response' (the
@@ -431,8 +448,8 @@ class KalmanPredictor:
     bandwidth_hz: float | None = None
     lines_hz: tuple[float, ...] = ()
     identify: bool = True
-    window_s: float = 2.0
-    every_s: float = 1.0
+    window_s: float | None = None
+    every_s: float | None = None
     max_lines: int = 4
     line_snr: float = 40.0
     line_bandwidth_hz: float = 0.05
@@ -442,10 +459,10 @@ class KalmanPredictor:
     sigma_floor_px: float = 1e-3
     nominal_px: Callable[[np.ndarray], np.ndarray] | None = None
     notch: Notch | None = None
-    handover: str = "full"
-    track_gain: float = 0.0
+    handover: str = "response"
+    track_gain: float = 0.005
     track_min_snr: float = 3.0
-    prune_snr: float | None = None
+    prune_snr: float | None = 10.0
     line_prior_px: float | None = None
     smith: bool = field(default=False, init=False)  # pseudo-open-loop by construction
 
@@ -464,10 +481,27 @@ class KalmanPredictor:
             raise ValueError(f"order must be 1, 2 or 3, got {self.order}")
         if self.bandwidth_hz is not None and not self.bandwidth_hz > 0:
             raise ValueError(f"bandwidth_hz must be > 0, got {self.bandwidth_hz}")
-        if not self.window_s > 0 or not self.every_s > 0:
-            raise ValueError("window_s and every_s must be > 0")
+        if (self.window_s is not None and not self.window_s > 0) or (
+                self.every_s is not None and not self.every_s > 0):
+            raise ValueError("window_s and every_s must be > 0 (or None: from the rate)")
         if any(not f > 0 for f in self.lines_hz):
             raise ValueError(f"lines_hz must hold frequencies > 0 Hz, got {list(self.lines_hz)}")
+
+    # -- identification's timing ------------------------------------------------------------
+    @property
+    def identification_window_s(self) -> float:
+        """The identification's window, s: ``window_s``, or by default
+        :data:`IDENTIFY_PERIODS` measurement periods, at most :data:`IDENTIFY_MAX_S`."""
+        if self.window_s is not None:
+            return float(self.window_s)
+        return min(IDENTIFY_PERIODS / self.rate_hz, IDENTIFY_MAX_S)
+
+    @property
+    def identification_every_s(self) -> float:
+        """The interval between identifications, s: ``every_s``, or half the window."""
+        if self.every_s is not None:
+            return float(self.every_s)
+        return 0.5 * self.identification_window_s
 
     # -- model ----------------------------------------------------------------------------
     def _bw(self) -> float:
@@ -589,20 +623,21 @@ class KalmanPredictor:
         return st.lines_hz + np.where(ok, self.track_gain * rot / (2 * np.pi * dt), 0.0)
 
     def _identify(self, st: KalmanState, t: float, z: np.ndarray, sigma: float):
-        keep = st.hist_t > t - self.window_s
+        window = self.identification_window_s
+        keep = st.hist_t > t - window
         hist_t = np.append(st.hist_t[keep], t)
         hist_z = np.vstack([st.hist_z[keep], z[None]])
         st = dataclasses.replace(st, hist_t=hist_t, hist_z=hist_z)
         span = hist_t[-1] - hist_t[0]
-        due = np.isnan(st.t_identified) or t - st.t_identified >= self.every_s
-        if not due or span < 0.9 * self.window_s:
+        due = np.isnan(st.t_identified) or t - st.t_identified >= self.identification_every_s
+        if not due or span < 0.9 * window:
             return st
         if self.prune_snr is not None and len(st.lines_hz):
             st = self._prune(dataclasses.replace(st, t_identified=t))
         if len(st.lines_hz) >= self.max_lines:
             return st
         st = dataclasses.replace(st, t_identified=t)
-        found = find_lines(hist_t, hist_z, 1.5 / self.window_s, self.line_snr,
+        found = find_lines(hist_t, hist_z, 1.5 / window, self.line_snr,
                            self.max_lines - len(st.lines_hz), st.lines_hz)
         if not len(found):
             return st

@@ -355,8 +355,8 @@ def run(
         out.print(_lock_text(lp["lock"], sc) + f"; {ex['worse_than_open']} of {ex['n']} "
                   "main-imager exposures worse with the loop than without", highlight=False)
         for d in lp.get("supervisor", {}).get("decisions", []):
-            out.print(f"supervisor at {d['t_s']:.3f} s: {d['action']} ({d['reason']})",
-                      highlight=False)
+            err.print(f"[yellow]warning:[/] supervisor at {d['t_s']:.3f} s: {d['action']} "
+                      f"({d['reason']})", highlight=False, soft_wrap=True, markup=True)
     out.print(f"loop: {lp['fidelity']} plant, {lp['estimator']} estimator, {lp['controller']} "
               f"controller, {lp['actuator']} stage; {lp['measurement_rate_hz']:g} "
               f"measurements/s, latency {lp['latency_s'] * 1e3:.1f} ms; stage at its stroke "

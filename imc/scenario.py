@@ -773,9 +773,10 @@ class EstimatorConfig(BlockConfig):
 
 
 class SupervisorConfig(BlockConfig):
-    """An optional watch on the loop: residual (the residual's running RMS against the
-    pseudo-open-loop motion's; when the loop amplifies what it should reject it holds the
-    stage, opens the loop or de-rates the controller; its decisions go to metrics.json)."""
+    """A watch on the loop (on by default; null: none): residual (the residual's running RMS
+    against the pseudo-open-loop motion's, in total and within the main imager's exposures;
+    when the loop amplifies what it should reject it holds the stage, opens the loop or
+    de-rates the controller; its decisions go to metrics.json and are printed as warnings)."""
 
     ROLE: ClassVar[str] = "supervisor"
     kind: str = Field("residual", description="residual")
@@ -803,8 +804,10 @@ class CompensationConfig(_Model):
     actuator: ActuatorConfig = ActuatorConfig(kind="ideal")
     estimator: EstimatorConfig = EstimatorConfig(kind="motion_field")
     transport: TransportConfig = TransportConfig()
-    supervisor: SupervisorConfig | None = Field(None, description="an optional supervisor "
-                                                "block (none: the loop is not watched)")
+    supervisor: SupervisorConfig | None = Field(
+        SupervisorConfig(kind="residual"), description="the supervisor block (default: "
+        "residual, which holds the stage when the loop's measured residual, total or within "
+        "an exposure, exceeds the open loop's; null: the loop is not watched)")
     min_phase_margin_deg: float = Field(20.0, ge=0.0, le=90.0, description="a design with "
                                         "less phase margin is refused, deg")
     min_modulus_margin: float = Field(0.25, ge=0.0, le=1.0, description="a design whose "

@@ -218,8 +218,9 @@ def test_supervisor_on_a_healthy_loop_never_acts_and_changes_nothing():
     assert kinds("supervisor") == ("residual",)
 
 
-def test_supervisor_state_resumes_from_chunks_exactly():
-    sup = ResidualSupervisor(window_s=0.2, action="derate")
+@pytest.mark.parametrize("exposure_s", [None, 0.1])
+def test_supervisor_state_resumes_from_chunks_exactly(exposure_s):
+    sup = ResidualSupervisor(window_s=0.2, action="derate", exposure_s=exposure_s)
     ctl = Integrator(rate_hz=RATE, gain=1.6)
     chunks = []
     full = _run(ctl, sup, on_chunk=chunks.append)
@@ -230,7 +231,7 @@ def test_supervisor_state_resumes_from_chunks_exactly():
 
 def test_supervisor_parameters_are_checked():
     for bad in ({"margin": 1.0}, {"window_s": 0.0}, {"action": "panic"},
-                {"derate_factor": 1.0}):
+                {"derate_factor": 1.0}, {"blur_margin": 1.0}, {"exposure_s": 0.0}):
         with pytest.raises(ValueError, match=next(iter(bad))):
             ResidualSupervisor(**bad)
 

@@ -35,7 +35,7 @@ def lock_summary(m: Models, parts: LoopParts) -> dict:
            "pole_lock_s": _finite(lock.pole_lock_s), "identification_s": None}
     ctl = parts.controller
     if getattr(ctl, "identify", False) and m.scenario.compensation.enabled:
-        out["identification_s"] = 0.9 * float(ctl.window_s)
+        out["identification_s"] = 0.9 * float(ctl.identification_window_s)
     return out
 
 

@@ -496,7 +496,10 @@ def build_loop(m: Models, channel=None, plant_sigma_px: float | None = None) -> 
                           seed=tuple(streams.key(sc.seed, "drops")), channel=channel)
     # the values the wiring derives from the rest of the scenario; each block takes the ones
     # its class names in WIRED
-    wired = {"field_point_px": m.field_point_px, "ramp_s": period, "rate_hz": 1.0 / period}
+    wired = {"field_point_px": m.field_point_px, "ramp_s": period, "rate_hz": 1.0 / period,
+             # the main imager's exposure and start (the supervisor's blur watch)
+             "exposure_s": float(m.imager.integration_s()),
+             "blur_from_s": float(sc.camera.main_imager.start_s)}
     if comp.controller.option("feedforward"):
         wired["nominal_px"] = nominal_target(m)
     try:

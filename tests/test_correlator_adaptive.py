@@ -1,5 +1,6 @@
-"""The default correlator path (issue 35): one FFT per block where the block's first pass
-says that is enough, the common-content passes (the precise path) elsewhere."""
+"""The adaptive correlator path (issue 35, ``rewindow=None``; the default stays the precise
+path until the adaptive one holds on rendered scenes): one FFT per block where the block's
+first pass says that is enough, the common-content passes (the precise path) elsewhere."""
 
 import numpy as np
 import pytest
@@ -29,7 +30,7 @@ def test_default_equals_the_precise_path_within_the_predicted_error():
     axis no more often than the expected fraction of a normal variable (0.54 %: 1 of 200;
     measured 0: the two differ by ~0.5 sigma rms)."""
     ref, cur, _ = texture_pairs(200, 128, np.random.default_rng(3501), snr=10.0)
-    default = measure_shift(ref, cur)
+    default = measure_shift(ref, cur, rewindow=None)
     precise = measure_shift(ref, cur, rewindow=True)
     assert default.valid.all() and precise.valid.all()
     assert default.precise.mean() < 0.1 and precise.precise.all()
@@ -44,9 +45,10 @@ def test_adaptive_decision_sends_smooth_blocks_to_the_precise_passes():
     and fixed windows disagree by more than a predicted sigma); each of the rule's reasons
     on its own."""
     ref, cur, _ = _smooth_pairs(24, 3502)
-    assert measure_shift(ref, cur).precise.mean() >= 0.9
+    assert measure_shift(ref, cur, rewindow=None).precise.mean() >= 0.9
     ref, cur, _ = texture_pairs(24, 128, np.random.default_rng(3503), snr=10.0)
-    assert measure_shift(ref, cur).precise.mean() <= 0.1  # 2 of 24 here: their windows differ
+    # 2 of 24 here: their windows differ
+    assert measure_shift(ref, cur, rewindow=None).precise.mean() <= 0.1
     ok, sharp, hi = np.ones(1, bool), np.full((1, 2), 0.93), np.array([20.0])
     crlb, zero = np.full((1, 2), 0.01), np.array([0.0])
 
@@ -71,7 +73,7 @@ def test_mixed_batch_accuracy_within_ten_percent_of_the_precise_path():
     ref_s, cur_s, d_s = texture_pairs(64, 128, np.random.default_rng(3504), snr=10.0)
     ref_m, cur_m, d_m = _smooth_pairs(64, 3505, beta=2.5, contrast=0.08)
     ref, cur, d = (np.concatenate(a) for a in ((ref_s, ref_m), (cur_s, cur_m), (d_s, d_m)))
-    default = measure_shift(ref, cur)
+    default = measure_shift(ref, cur, rewindow=None)
     precise = measure_shift(ref, cur, rewindow=True)
     assert 0.3 < default.precise.mean() < 0.7
     both = default.valid & precise.valid
@@ -94,6 +96,6 @@ def test_rewindow_options_force_one_path():
     ref, cur, _ = _smooth_pairs(8, 3506)
     assert measure_shift(ref, cur, rewindow=True).precise.all()
     assert not measure_shift(ref, cur, rewindow=False).precise.any()
-    assert CorrelatorOptions().rewindow is None
+    assert CorrelatorOptions().rewindow is True  # the precise path stays the default
     with pytest.raises(ValueError, match="rewindow"):
         CorrelatorOptions(rewindow="auto")

@@ -133,8 +133,10 @@ def test_geotiff_errors_name_the_file_and_the_fix(tmp_path):
     write_geotiff(tmp_path / "far.tif", dem, 500100.0, 4000010.0, 3.0, 3.0)
     (tmp_path / "bad.tif").write_bytes(b"not a tiff")
     o = tmp_path / "o.tif"
-    with pytest.raises(GeoTiffError, match=r"holes.tif: 1 NaN / nodata .*gdal_fillnodata"):
-        terrain_from_geotiff(o, tmp_path / "holes.tif", 2.0)
+    # a DEM hole is masked, filled and noted (refused only where the tracker looks: the
+    # wiring's check, tests/test_geotiff_inputs.py)
+    holed = terrain_from_geotiff(o, tmp_path / "holes.tif", 2.0)[0]
+    assert holed.nodata_dem.any() and any("DEM nodes" in n for n in holed.notes)
     with pytest.raises(GeoTiffError, match=r"far.tif: its extent .* does not cover"):
         terrain_from_geotiff(o, tmp_path / "far.tif", 2.0)
     with pytest.raises(GeoTiffError, match=r"bad.tif: cannot read it as a TIFF"):

@@ -89,10 +89,11 @@ def _run(sc: Scenario, out: Path, save_frames: bool, fresh: bool, progress: Prog
          rerun: bool, warn: Callable[[str], None] | None, report_figures: bool,
          jobs: Jobs) -> tuple[dict, dict]:
     m = build_models(sc)
+    plan = None
     if sc.product.enabled:  # refuse a product that does not fit before rendering anything
         from imc.wiring.product import plan_product
 
-        plan_product(m)
+        plan = plan_product(m)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     plant = build_plant(m)
@@ -144,7 +145,7 @@ def _run(sc: Scenario, out: Path, save_frames: bool, fresh: bool, progress: Prog
     drawing = []
     rendered = None
     if sc.product.enabled:
-        rendered = _product(m, res, truth, plant, out, fresh, metrics, files)
+        rendered = _product(m, res, truth, plant, plan, out, fresh, metrics, files)
         if report_figures:
             drawing.append(jobs.submit(write_quicklook, out))
     if sc.metrics.blur_images and not m.imager.scanning:  # a TDI product is its own picture
@@ -173,7 +174,7 @@ def _run(sc: Scenario, out: Path, save_frames: bool, fresh: bool, progress: Prog
     return metrics, info
 
 
-def _product(m: Models, res, truth, plant, out: Path, fresh: bool, metrics: dict,
+def _product(m: Models, res, truth, plant, plan, out: Path, fresh: bool, metrics: dict,
              files: list):
     """The main imager's product (:func:`imc.wiring.product.product_study`) from the ground's
     record (:mod:`imc.wiring.links`, :mod:`imc.wiring.restitution`) into ``product/`` and
@@ -181,17 +182,16 @@ def _product(m: Models, res, truth, plant, out: Path, fresh: bool, metrics: dict
     from imc.io import write_npz
     from imc.outputs.product_files import product_metrics, write_product
     from imc.wiring.links import measure_links
-    from imc.wiring.product import plan_product, product_study
+    from imc.wiring.product import product_study
     from imc.wiring.restitution import restitute
 
     links = measure_links(m, res.record, plant, truth.stage_mean_px,
                           m.scenario.product.restitution.baselines)
     (out / "product").mkdir(parents=True, exist_ok=True)
     write_npz(out / "product" / "links.npz", **links.arrays())
-    plan = plan_product(m)
     rest = restitute(m, links, np.array([plan.line_t_s[0], plan.line_t_s[-1]
                                          + plan.integration_s]))
-    ds, rendered = product_study(m, res, out, fresh, rest)
+    ds, rendered = product_study(m, res, out, fresh, rest, plan)
     ds.attrs["restitution"] = {"baselines": rest.baselines, "links": rest.links_used,
                                "aiding": list(rest.aiding),
                                "efficiency": [float(x) for x in links.efficiency]}

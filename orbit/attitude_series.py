@@ -153,6 +153,18 @@ def _spectrum(t: np.ndarray, v: np.ndarray):
 
 # ----- CSV --------------------------------------------------------------------------------
 
+def _read_series_text(path: str | Path, what: str) -> tuple[str, str]:
+    """(the name errors use: ``what`` and the path, the file's text); one line naming both
+    when it cannot be read."""
+    p = Path(path)
+    name = f"{what} {p}"
+    try:
+        return name, p.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as e:
+        raise AttitudeSeriesError(f"{name}: cannot read it "
+                                  f"({getattr(e, 'strerror', None) or e})") from None
+
+
 def read_jitter_csv(path: str | Path, epoch_utc: np.datetime64, ifov_rad: float,
                     what: str = "attitude.jitter.series.file") -> SampledJitter:
     """Jitter samples from a CSV (module docstring) with t = 0 at ``epoch_utc``.
@@ -162,13 +174,7 @@ def read_jitter_csv(path: str | Path, epoch_utc: np.datetime64, ifov_rad: float,
     AttitudeSeriesError
         One line naming ``what``, the file and the fix.
     """
-    p = Path(path)
-    name = f"{what} {p}"
-    try:
-        text = p.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as e:
-        raise AttitudeSeriesError(f"{name}: cannot read it "
-                                  f"({getattr(e, 'strerror', None) or e})") from None
+    name, text = _read_series_text(path, what)
     rows = [r for r in csv.reader(line for line in text.splitlines()
                                   if line.strip() and not line.lstrip().startswith("#"))]
     if len(rows) < 2:
@@ -208,7 +214,7 @@ def read_jitter_csv(path: str | Path, epoch_utc: np.datetime64, ifov_rad: float,
             raise AttitudeSeriesError(f"{name}: line {k} ({','.join(r)[:60]}) is not "
                                       f"{len(head)} numbers") from None
     return SampledJitter(t_s=np.array(t), rotvec_samples_rad=np.array(vals) * np.array(scale),
-                         source=str(p))
+                         source=str(path))
 
 
 def write_jitter_csv(path: str | Path, t_s: np.ndarray, rotvec_rad: np.ndarray,
@@ -288,13 +294,7 @@ def read_aem(path: str | Path, epoch_utc: np.datetime64,
     """
     from scipy.spatial.transform import Rotation
 
-    p = Path(path)
-    name = f"{what} {p}"
-    try:
-        text = p.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as e:
-        raise AttitudeSeriesError(f"{name}: cannot read it "
-                                  f"({getattr(e, 'strerror', None) or e})") from None
+    name, text = _read_series_text(path, what)
     if text.lstrip().startswith("<"):
         raise AttitudeSeriesError(f"{name}: an XML message; imcsim reads AEMs in KVN (convert "
                                   "it, or give the attitude as a CSV)")
@@ -358,7 +358,7 @@ def read_aem(path: str | Path, epoch_utc: np.datetime64,
     order = np.argsort(t, kind="stable")
     t, m = t[order], m[order]
     keep = np.r_[True, np.diff(t) > 0]  # segments that share a boundary epoch
-    return AttitudeEphemeris(t[keep], m[keep], str(p))
+    return AttitudeEphemeris(t[keep], m[keep], str(path))
 
 
 def rotvec_of(r: np.ndarray) -> np.ndarray:

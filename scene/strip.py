@@ -117,6 +117,13 @@ def _indices(values, n_max: int, name: str = "cols") -> np.ndarray:
     return c.astype(np.float64)
 
 
+def probe_columns(cols) -> np.ndarray:
+    """The detector columns (P,) a strip's line-of-sight truth is evaluated at:
+    :data:`OFFSET_PROBES` spread over ``cols``, float64."""
+    c = np.asarray(cols, dtype=np.float64)
+    return np.unique(np.round(np.linspace(c.min(), c.max(), OFFSET_PROBES), 6))
+
+
 @dataclass(frozen=True)
 class _StripSetup:
     """What a strip's chunks share, computed once per strip: the columns (C,), the line rate,
@@ -141,8 +148,7 @@ def _strip_setup(caster: Caster, camera: CameraModel, imager: TdiImager, t0_s: f
         lines_per_chunk = max(1, caster.batch_rays // (sampling.samples * len(cols)))
     if lines_per_chunk < 1:
         raise ValueError(f"lines_per_chunk must be >= 1, got {lines_per_chunk}")
-    probes = np.unique(np.round(np.linspace(cols.min(), cols.max(), OFFSET_PROBES), 6))
-    return _StripSetup(cols, rate, sampling, probes, int(lines_per_chunk))
+    return _StripSetup(cols, rate, sampling, probe_columns(cols), int(lines_per_chunk))
 
 
 def iter_strip(caster: Caster, camera: CameraModel, imager: TdiImager, t0_s: float,

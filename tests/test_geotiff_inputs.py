@@ -138,7 +138,9 @@ OLINDA = ROOT / "scenarios" / "data" / "olinda"
 
 
 @pytest.mark.skipif(not (OLINDA / "L7_ETMs.tif").is_file(),
-                    reason="the Olinda case is not fetched: run `make data` (needs apt-get)")
+                    reason="real data not on this machine: scenarios/data/olinda/ is filled by "
+                           "`make data` from Debian's r-cran-stars package (apt-get), which "
+                           "this machine could not reach; run `make data` to include it")
 def test_olinda_runs_with_its_real_dem_and_the_loop_reduces_the_wobble(tmp_path):
     """scenarios/olinda.yaml, shortened to 0.5 s: the DEM's south edge is edge-extended with
     a warning, and the loop reduces the 1 Hz / 3 Hz wobble at least 5x (the full run: 35.6x)."""

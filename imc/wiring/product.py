@@ -564,10 +564,11 @@ def truth_offsets(m: Models, plan: ProductPlan, versions: Versions, samples: int
     rendering): what :func:`render_versions` records beside its radiance, for the
     geometry-only product (``product.render: false``)."""
     from camera.linescan import frame_offset_px, line_offset_px
+    from scene.strip import probe_columns
 
     cam, imager = m.main_camera, plan.imager
     smp = imager.sampling(samples)
-    probes = np.unique(np.round(np.linspace(plan.cols[0], plan.cols[-1], 5), 6)).astype(float)
+    probes = probe_columns(plan.cols)
     out = {}
     for name in versions.names[1:]:
         st = versions.stage[name]
@@ -787,13 +788,13 @@ def run_study(m: Models, res, plan: ProductPlan, samples: int, store: Path,
     return ds, rendered
 
 
-def product_study(m: Models, res, out: Path, fresh: bool = False, restitution=None
-                  ) -> tuple[xr.Dataset, Rendered]:
+def product_study(m: Models, res, out: Path, fresh: bool = False, restitution=None,
+                  plan: ProductPlan | None = None) -> tuple[xr.Dataset, Rendered]:
     """Render, process and judge the run's main-imager product (the scenario's ``product``
     section); a killed run resumes from the chunks written (``fresh``: renders anew).
     Returns the labelled result (:func:`product_dataset`) and the renders;
     :func:`imc.outputs.product_files.write_product` writes them."""
-    plan = plan_product(m)
+    plan = plan_product(m) if plan is None else plan
     if not m.scenario.product.render:
         return geometry_study(m, res, plan, m.scenario.product.samples, restitution), None
     return run_study(m, res, plan, m.scenario.product.samples,

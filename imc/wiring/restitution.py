@@ -82,14 +82,7 @@ class Restitution:
 
         t = np.asarray(t_s, dtype=np.float64)
         t = t[np.unique(np.linspace(0, len(t) - 1, min(len(t), max_samples)).astype(int))]
-        tf = self.solution.t_s
-        tc = np.clip(t, tf[0], tf[-1])
-        lo = np.clip(np.searchsorted(tf, tc, side="right") - 1, 0, tf.size - 2)
-        w = (tc - tf[lo]) / (tf[lo + 1] - tf[lo])
-        weights = np.zeros((len(t), tf.size))
-        weights[np.arange(len(t)), lo] = 1.0 - w
-        weights[np.arange(len(t)), lo + 1] += w
-        cov = weights @ self.solution.cov_px2 @ weights.T  # (2, q, q)
+        cov = self.solution.covariance_at(t)  # (2, q, q)
         g = geometry_rms(np.zeros((len(t), 2)), t, cov)
         absolute = np.sqrt(np.einsum("aqq->a", cov) / len(t))
         return {"constant_px": [float(x) for x in g["predicted_constant"]],

@@ -802,7 +802,8 @@ def check(
             missing = _missing_inputs(sc)
             if missing:  # user data `make data` fetches (the Olinda case): not a failure
                 out.print(f"skipped  {sc.name} ({f}): its input {missing[0]} is not there "
-                          "(`make data` fetches the bundled cases' data)", highlight=False)
+                          "(`make data` fetches the bundled cases' data)", highlight=False,
+                          soft_wrap=True)
                 continue
             _size_check(sc, force)
             scenarios.append((f, sc))

@@ -168,13 +168,13 @@ def misregistration_m(reference: np.ndarray, image: np.ndarray, cell_m: float
     """Where ``image``'s content sits against ``reference``'s on the same north-up map grid
     of ``cell_m`` m cells: (east, north) m, by phase correlation
     (``skimage.registration.phase_cross_correlation``, 1 / :data:`UPSAMPLE` cell) over the
-    box where both are finite, each less its mean."""
-    from skimage.filters import window
+    box where both are finite, each less its mean and Hann-windowed."""
     from skimage.registration import phase_cross_correlation
 
     box = common_box(reference, image)
     a, b = reference[box], image[box]
-    w = window("hann", a.shape)  # no edge: the box's borders would pull the shift to 0
+    w = np.outer(np.hanning(a.shape[0]), np.hanning(a.shape[1]))  # the box's borders would
+    # otherwise pull the shift toward 0
     shift, _, _ = phase_cross_correlation((a - a.mean()) * w, (b - b.mean()) * w,
                                           upsample_factor=UPSAMPLE, normalization=None)
     # the shift registers image onto reference: the content sits at -shift (rows run south)

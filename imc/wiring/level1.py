@@ -280,14 +280,20 @@ def level1_study(m: Models, plan, versions, ground, samples: int, cell_m: float)
     ll, cc = np.mgrid[0:n_l, 0:n_c].astype(np.float64)
     ortho, coords = {}, {}
     with dem_dataset(dem.heights_m, dem.transform, dem.crs) as dem_path:
+        groups: dict = {}  # versions sharing an RPC and a coverage: one warp
         for name in names:
-            img = np.asarray(ground.products["scene", name], dtype=np.float64)
-            bands = np.stack([img, ll, cc])[:, win]
-            bands[1:] = np.where(np.isfinite(bands[0]), bands[1:], np.nan)
+            img = np.asarray(ground.products["scene", name], dtype=np.float64)[win]
+            key = (rpcs[name].line_off, rpcs[name].samp_off, np.isfinite(img).tobytes())
+            groups.setdefault(key, []).append((name, img))
+        for members in groups.values():
+            ok_src = np.isfinite(members[0][1])
+            bands = [img for _, img in members] + [np.where(ok_src, ll[win], np.nan),
+                                                   np.where(ok_src, cc[win], np.nan)]
             # the window's rows as the RPC counts them: from the product's line 0
-            rpc_w = shifted(rpcs[name], float(win.start), 0.0)
-            out = orthorectify(bands, rpc_w, dem_path, transform, shape, mf.crs)
-            ortho[name], coords[name] = out[0], out[1:]
+            rpc_w = shifted(rpcs[members[0][0]], float(win.start), 0.0)
+            out = orthorectify(np.stack(bands), rpc_w, dem_path, transform, shape, mf.crs)
+            for i, (name, _) in enumerate(members):
+                ortho[name], coords[name] = out[i], out[-2:]
         # check points: a regular subset of the cells inside every version's interior;
         # their product pixels from GDAL's RPC transformer itself (the warper approximates)
         ys = np.linspace(0, shape[0] - 1, CHECK_POINTS).round().astype(int)

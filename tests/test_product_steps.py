@@ -262,3 +262,17 @@ def test_metrics_are_written_from_the_labelled_result(product_run):
         assert ds.rpcs is not None and abs(ds.rpcs.line_off) > 0
     with rasterio.open(out / "product" / "dem.tif") as ds:
         assert np.all(np.isfinite(ds.read(1)))
+        dem_crs = ds.crs.to_wkt()
+    # as a user orthorectifies the files: open.tif's RPCs and dem.tif through GDAL give the
+    # run's own orthoimage
+    from affine import Affine
+
+    from ground.ortho import orthorectify
+
+    with np.load(out / "product" / "product.npz") as z:
+        mine, t = z["ortho/open"], Affine(*z["ortho_transform"])
+    with rasterio.open(out / "product" / "open.tif") as ds:
+        img, rpcs = ds.read(1).astype(np.float64), ds.rpcs
+    again = orthorectify(img, rpcs, str(out / "product" / "dem.tif"), t, mine.shape, dem_crs)
+    ok = np.isfinite(mine) & np.isfinite(again)
+    assert ok.mean() > 0.3 and np.max(np.abs(again[ok] - mine[ok])) < 1e-3

@@ -228,9 +228,106 @@ class Level1:
 
 
 def _ortho_window(plan) -> slice:
+    """The product lines orthorectified: all, or a long strip's middle :data:`ORTHO_LINES`."""
     n = min(plan.n_lines, max(len(plan.cols), ORTHO_LINES))
     a = (plan.n_lines - n) // 2
     return slice(a, a + n)
+
+
+@dataclass(frozen=True)
+class MapGrid:
+    """A north-up grid of square ``cell_m`` cells in the map frame: its upper-left corner
+    (``x0_m``, ``y1_m``) and ``shape`` (rows, cols)."""
+
+    x0_m: float
+    y1_m: float
+    cell_m: float
+    shape: tuple[int, int]
+
+    @property
+    def transform(self):
+        from affine import Affine
+
+        return Affine(self.cell_m, 0.0, self.x0_m, 0.0, -self.cell_m, self.y1_m)
+
+    @property
+    def box_m(self) -> tuple[float, float, float, float]:
+        """(x0, y0, x1, y1), m."""
+        h, w = self.shape
+        return (self.x0_m, self.y1_m - h * self.cell_m, self.x0_m + w * self.cell_m,
+                self.y1_m)
+
+    def centres_m(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """Map positions (N, 2) of cell centres (rows, cols)."""
+        return np.column_stack([self.x0_m + (cols + 0.5) * self.cell_m,
+                                self.y1_m - (rows + 0.5) * self.cell_m])
+
+
+def _map_grid(mf: MapFrame, static_at, n_c: int, win: slice, cell_m: float) -> MapGrid:
+    """The grid over the window's nominal footprint on the terrain, snapped to the cell."""
+    n = win.stop - win.start
+    edge_l = np.r_[np.full(n_c, win.start), np.full(n_c, win.stop - 1),
+                   np.arange(win.start, win.stop), np.arange(win.start, win.stop)]
+    edge_c = np.r_[np.arange(n_c), np.arange(n_c), np.zeros(n), np.full(n, n_c - 1)]
+    foot = mf.xy_of_enu(static_at(edge_l.astype(float), edge_c.astype(float)))
+    x0, y0 = np.floor(foot.min(axis=0) / cell_m) * cell_m
+    x1, y1 = np.ceil(foot.max(axis=0) / cell_m) * cell_m
+    return MapGrid(float(x0), float(y1), float(cell_m),
+                   (int(round((y1 - y0) / cell_m)), int(round((x1 - x0) / cell_m))))
+
+
+def _orthorectify_versions(products: dict, rpcs: dict, win: slice, grid: MapGrid,
+                           dem_path: str, crs: str) -> tuple[dict, dict]:
+    """({version: orthoimage}, {version: (2, rows, cols) the product's line and column each
+    cell shows}): the versions sharing an RPC and a coverage in one warp, the coordinate
+    rasters beside their images."""
+    from ground.ortho import orthorectify
+    from ground.rpc import shifted
+
+    n_l, n_c = next(iter(products.values())).shape
+    ll, cc = np.mgrid[win.start:win.stop, 0:n_c].astype(np.float64)
+    groups: dict = {}
+    for name, image in products.items():
+        img = np.asarray(image, dtype=np.float64)[win]
+        key = (rpcs[name].line_off, rpcs[name].samp_off, np.isfinite(img).tobytes())
+        groups.setdefault(key, []).append((name, img))
+    ortho, coords = {}, {}
+    for members in groups.values():
+        ok = np.isfinite(members[0][1])
+        bands = [img for _, img in members] + [np.where(ok, ll, np.nan),
+                                               np.where(ok, cc, np.nan)]
+        # the window's rows as the RPC counts them: from the product's line 0
+        rpc_w = shifted(rpcs[members[0][0]], float(win.start), 0.0)
+        out = orthorectify(np.stack(bands), rpc_w, dem_path, grid.transform, grid.shape, crs)
+        for i, (name, _) in enumerate(members):
+            ortho[name], coords[name] = out[i], out[-2:]
+    return ortho, coords
+
+
+def _check_points(grid: MapGrid, mf: MapFrame, rpcs: dict, coords: dict, dem_path: str,
+                  shape: tuple[int, int]) -> tuple[np.ndarray, dict, float]:
+    """(map positions (N, 2), {version: product pixels (2, N)}, the warper's largest
+    deviation from the transformer, px) of the check points: a regular subset of the cells
+    inside every version's ortho and :data:`EDGE_PX` inside its product; their pixels from
+    GDAL's RPC transformer itself."""
+    from ground.ortho import rpc_pixels
+
+    ys = np.linspace(0, grid.shape[0] - 1, CHECK_POINTS).round().astype(int)
+    xs = np.linspace(0, grid.shape[1] - 1, CHECK_POINTS).round().astype(int)
+    gy, gx = (a.ravel() for a in np.meshgrid(ys, xs, indexing="ij"))
+    xy = grid.centres_m(gy, gx)
+    lon, lat = mf.lonlat(xy[:, 0], xy[:, 1])
+    pix = {n: rpc_pixels(r, lon, lat, dem_path).T for n, r in rpcs.items()}
+    ok = np.ones(len(gy), bool)
+    for name, lc in pix.items():
+        ok &= (np.isfinite(coords[name][:, gy, gx]).all(axis=0)
+               & np.all((lc >= EDGE_PX) & (lc <= np.array(shape)[:, None] - 1 - EDGE_PX),
+                        axis=0))
+    if not ok.any():
+        raise ValueError("level1: no check point lies inside every version's ortho")
+    warp = max(float(np.max(np.abs(coords[n][:, gy[ok], gx[ok]] - lc[:, ok])))
+               for n, lc in pix.items())
+    return xy[ok], {n: lc[:, ok] for n, lc in pix.items()}, warp
 
 
 def level1_study(m: Models, plan, versions, ground, samples: int, cell_m: float) -> Level1:
@@ -240,16 +337,9 @@ def level1_study(m: Models, plan, versions, ground, samples: int, cell_m: float)
     shifts); the map grid's cell ``cell_m`` m (the product's GSD)."""
     import time
 
-    from affine import Affine
     from scipy.ndimage import map_coordinates
 
-    from ground.ortho import (
-        dem_dataset,
-        geolocation,
-        misregistration_m,
-        orthorectify,
-        rpc_pixels,
-    )
+    from ground.ortho import dem_dataset, geolocation, misregistration_m
     from ground.rectify import source_coordinates
     from ground.rpc import shifted
 
@@ -258,81 +348,36 @@ def level1_study(m: Models, plan, versions, ground, samples: int, cell_m: float)
     n_l, n_c = plan.n_lines, len(plan.cols)
     win = _ortho_window(plan)
     static_at = _truth_fn(m, plan, None, True, samples)
-    # the map box: the window's nominal footprint on the terrain, snapped to the cell
-    edge_l = np.r_[np.full(n_c, win.start), np.full(n_c, win.stop - 1),
-                   np.arange(win.start, win.stop), np.arange(win.start, win.stop)]
-    edge_c = np.r_[np.arange(n_c), np.arange(n_c), np.zeros(win.stop - win.start),
-                   np.full(win.stop - win.start, n_c - 1)]
-    foot = mf.xy_of_enu(static_at(edge_l.astype(float), edge_c.astype(float)))
-    cell = float(cell_m)
-    x0, y0 = np.floor(foot.min(axis=0) / cell) * cell
-    x1, y1 = np.ceil(foot.max(axis=0) / cell) * cell
-    shape = (int(round((y1 - y0) / cell)), int(round((x1 - x0) / cell)))
-    transform = Affine(cell, 0.0, x0, 0.0, -cell, y1)
-    dem = scene_dem(m, mf, (x0, y0, x1, y1))
+    grid = _map_grid(mf, static_at, n_c, win, cell_m)
+    dem = scene_dem(m, mf, grid.box_m)
     nominal = fit_nominal_rpc(m, plan, samples, mf, dem)
-    names = [n for (s, n) in ground.products if s == "scene"]
+    products = {n: img for (s, n), img in ground.products.items() if s == "scene"}
     rpcs = {}
-    for name in names:
-        base = name.split("_gc")[0]
-        sh = ground.shift_px[base] if "_gc" in name else np.zeros(2)
+    for name in products:  # a corrected version: the nominal grid displaced by its shift
+        sh = ground.shift_px[name.split("_gc")[0]] if "_gc" in name else np.zeros(2)
         rpcs[name] = shifted(nominal.fit.rpc, float(sh[0]), float(sh[1]))
-    ll, cc = np.mgrid[0:n_l, 0:n_c].astype(np.float64)
-    ortho, coords = {}, {}
     with dem_dataset(dem.heights_m, dem.transform, dem.crs) as dem_path:
-        groups: dict = {}  # versions sharing an RPC and a coverage: one warp
-        for name in names:
-            img = np.asarray(ground.products["scene", name], dtype=np.float64)[win]
-            key = (rpcs[name].line_off, rpcs[name].samp_off, np.isfinite(img).tobytes())
-            groups.setdefault(key, []).append((name, img))
-        for members in groups.values():
-            ok_src = np.isfinite(members[0][1])
-            bands = [img for _, img in members] + [np.where(ok_src, ll[win], np.nan),
-                                                   np.where(ok_src, cc[win], np.nan)]
-            # the window's rows as the RPC counts them: from the product's line 0
-            rpc_w = shifted(rpcs[members[0][0]], float(win.start), 0.0)
-            out = orthorectify(np.stack(bands), rpc_w, dem_path, transform, shape, mf.crs)
-            for i, (name, _) in enumerate(members):
-                ortho[name], coords[name] = out[i], out[-2:]
-        # check points: a regular subset of the cells inside every version's interior;
-        # their product pixels from GDAL's RPC transformer itself (the warper approximates)
-        ys = np.linspace(0, shape[0] - 1, CHECK_POINTS).round().astype(int)
-        xs = np.linspace(0, shape[1] - 1, CHECK_POINTS).round().astype(int)
-        gy, gx = (a.ravel() for a in np.meshgrid(ys, xs, indexing="ij"))
-        cell_xy = np.column_stack([x0 + (gx + 0.5) * cell, y1 - (gy + 0.5) * cell])
-        lon, lat = mf.lonlat(cell_xy[:, 0], cell_xy[:, 1])
-        pix = {n: rpc_pixels(rpcs[n], lon, lat, dem_path).T for n in names}
-    ok = np.ones(len(gy), bool)
-    warp_px = 0.0
-    for name, lc in pix.items():
-        ok &= (np.isfinite(coords[name][:, gy, gx]).all(axis=0) & (lc[0] >= EDGE_PX)
-               & (lc[0] <= n_l - 1 - EDGE_PX) & (lc[1] >= EDGE_PX)
-               & (lc[1] <= n_c - 1 - EDGE_PX))
-    for name, lc in pix.items():
-        warp_px = max(warp_px, float(np.max(np.abs(coords[name][:, gy[ok], gx[ok]]
-                                                    - lc[:, ok]))))
-    gy, gx, cell_xy = gy[ok], gx[ok], cell_xy[ok]
-    if len(gy) == 0:
-        raise ValueError("level1: no check point lies inside every version's ortho")
-    geo, errors = {}, {}
+        ortho, coords = _orthorectify_versions(products, rpcs, win, grid, dem_path, mf.crs)
+        check_xy, pix, warp_px = _check_points(grid, mf, rpcs, coords, dem_path, (n_l, n_c))
     raw_truth = {n: _truth_fn(m, plan, versions.stage[n], versions.nominal[n], samples)
                  for n in versions.names}
-    for name in names:
-        lc = pix[name][:, ok]
+    sources: dict = {}
+    geo, errors = {}, {}
+    for name, lc in pix.items():
         base = name.split("_gc")[0]
         if "_gc" in name:  # the corrected pixel's source in the raw product
-            off = ground.offsets["record"][base] - ground.shift_px[base]
-            src = source_coordinates(off, (n_l, n_c))
-            lc = np.stack([map_coordinates(s, lc, order=1, mode="nearest") for s in src])
-        true_xy = mf.xy_of_enu(raw_truth[base](lc[0], lc[1]))
-        errors[name] = cell_xy - true_xy
+            if base not in sources:
+                off = ground.offsets["record"][base] - ground.shift_px[base]
+                sources[base] = source_coordinates(off, (n_l, n_c))
+            lc = np.stack([map_coordinates(s, lc, order=1, mode="nearest")
+                           for s in sources[base]])
+        errors[name] = check_xy - mf.xy_of_enu(raw_truth[base](lc[0], lc[1]))
         geo[name] = geolocation(errors[name]).to_dict()
         if name != "static":
             geo[name]["misregistration_m"] = list(misregistration_m(
-                ortho["static"], ortho[name], cell))
+                ortho["static"], ortho[name], grid.cell_m))
     for name in versions.names[1:]:  # the lines' true offsets in metres
-        off = ground.offsets["true"][name]
-        lc = pix[name][:, ok]
+        lc, off = pix[name], ground.offsets["true"][name]
         d = np.column_stack([np.interp(lc[0], np.arange(n_l), off[:, k]) for k in range(2)])
         pred = (mf.xy_of_enu(static_at(lc[0], lc[1]))
                 - mf.xy_of_enu(static_at(lc[0] + d[:, 0], lc[1] + d[:, 1])))
@@ -341,8 +386,8 @@ def level1_study(m: Models, plan, versions, ground, samples: int, cell_m: float)
                                    "rms_difference_m": float(np.sqrt(np.mean(
                                        np.sum((pred - errors[name]) ** 2, axis=1))))}
     fit = nominal.fit.to_dict() | {"points": nominal.points, "warp_deviation_px": warp_px}
-    return Level1(rpcs, fit, ortho, tuple(transform)[:6], mf.crs, (win.start, win.stop), dem,
-                  geo, cell_xy, errors, time.perf_counter() - t0)
+    return Level1(rpcs, fit, ortho, tuple(grid.transform)[:6], mf.crs, (win.start, win.stop),
+                  dem, geo, check_xy, errors, time.perf_counter() - t0)
 
 
 def add_level1(ds, l1: Level1):

@@ -258,6 +258,11 @@ def test_metrics_are_written_from_the_labelled_result(product_run):
     assert geo["versions"]["static"]["ce90_m"] < 0.1 * written["gsd_m"]
     assert geo["versions"]["open"]["ce90_m"] == pytest.approx(
         geo["versions"]["open"]["from_lines"]["ce90_m"], rel=0.1)
+    # the ground's correction shows in metres too (0.3 px jitter: 0.31 m relative CE90 open,
+    # 0.006 m corrected, measured)
+    v = geo["versions"]
+    assert v["open_gc"]["relative_ce90_m"] < 0.1 * v["open"]["relative_ce90_m"]
+    assert v["closed_gc"]["relative_ce90_m"] < 0.1 * v["closed"]["relative_ce90_m"]
     with rasterio.open(out / "product" / "open_gc.tif") as ds:
         assert ds.rpcs is not None and abs(ds.rpcs.line_off) > 0
     with rasterio.open(out / "product" / "dem.tif") as ds:

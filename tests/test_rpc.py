@@ -153,3 +153,18 @@ def test_geolocation_of_a_known_shift_and_of_the_jitter(strip, level1):
     o = level1.geolocation["open"]
     assert o["ce90_m"] > 0.2 * gsd
     assert o["ce90_m"] == pytest.approx(o["from_lines"]["ce90_m"], rel=0.1)
+
+
+def test_a_long_strip_is_orthorectified_over_its_middle(strip, monkeypatch):
+    # the window's rows counted from the product's line 0: the same figures on its middle
+    import imc.wiring.level1 as level1_mod
+
+    m, plan, versions, ground = strip
+    monkeypatch.setattr(level1_mod, "ORTHO_LINES", 100)  # 128 of the 200 lines (the cols)
+    l1 = level1_study(m, plan, versions, ground, SAMPLES, gsd_m(m))
+    assert l1.ortho_lines == (36, 164)
+    gsd = gsd_m(m)
+    assert l1.geolocation["static"]["ce90_m"] <= 0.1 * gsd
+    c = l1.geolocation["closed"]
+    assert np.allclose(c["mean_m"], c["from_lines"]["mean_m"], atol=0.01 * gsd)
+    assert np.allclose(c["misregistration_m"], c["from_lines"]["mean_m"], atol=0.05 * gsd)

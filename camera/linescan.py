@@ -12,7 +12,8 @@ MTF itself).
 
 Truth: :func:`line_offset_px` says, from the camera model alone, where each rendered line's
 content sits on the nominal (jitter-free, stage-free) grid of the same imager;
-:func:`frame_offset_px` the same for a frame exposure.
+:func:`frame_offset_px` the same for a frame exposure; :func:`pixel_ground_m` where a strip
+pixel's content lies on the ground (a Level-1 product's check points and its RPC grid).
 """
 
 from __future__ import annotations
@@ -127,6 +128,39 @@ def line_offset_px(camera: CameraModel, imager: TdiImager, sampling: LineSamplin
     gamma = rc[..., 1] - sampling.subpixel_px[None, :, None, 1]
     off = np.stack([lam - lines[:, None, None], gamma - cols[None, None, :]], axis=-1)
     return off.mean(axis=1)
+
+
+def pixel_ground_m(camera: CameraModel, imager: TdiImager, sampling: LineSampling,
+                   t0_s: float, lines: np.ndarray, cols: np.ndarray, height_fn: HeightFn,
+                   stage_offset_px: StageFn | None = None, nominal: bool = False
+                   ) -> np.ndarray:
+    """Where the content of strip pixels (line, col) lies on a surface: the mean ENU ground
+    point (N, 3) m over the pixel's samples (every instant, stage and footprint offset the
+    renderer casts for it), from the camera model alone.
+
+    Parameters
+    ----------
+    camera : the true camera with the imager's focal plane (:func:`imager_camera`).
+    imager, sampling : the TDI imager and its sampling (:func:`tdi_sampling`).
+    t0_s : the start of line 0's integration, s.
+    lines, cols : (N,) paired line indices and detector columns (fractional allowed: a
+        point between pixels; a line between lines integrates between their times).
+    height_fn : the surface h(E, N), m: the terrain (the truth), or a layer of constant
+        height above the ellipsoid (a replacement sensor model's fitting grid).
+    stage_offset_px : the stage trajectory, or None (at rest).
+    nominal : the nominal pose (the geometry the ground knows) instead of the true one.
+    """
+    cam = check_imager_camera(camera, imager)
+    lines = np.atleast_1d(np.asarray(lines, dtype=np.float64))
+    cols = np.atleast_1d(np.asarray(cols, dtype=np.float64))
+    if lines.shape != cols.shape or lines.ndim != 1:
+        raise ValueError(f"lines and cols must be paired 1-D arrays, got {lines.shape} and "
+                         f"{cols.shape}")
+    t = sampling.times_s(t0_s, lines)  # (N, S)
+    det = np.moveaxis(sampling.detector_rc(cols), 0, 1)  # (N, S, 2)
+    pos = det + stage_at(stage_offset_px, t)
+    x = cam.ground_points_posed(cam.pose(t, nominal=nominal), pos, height_fn)
+    return x.mean(axis=1)
 
 
 def frame_offset_px(camera: CameraModel, imager: FrameImager, sampling: FrameSampling,

@@ -18,11 +18,17 @@ ground/ owns what happens to the main imager's strip (or frame) once it is on th
   error of an estimated offset against the true one;
 * ``ground.restore``: the residual-motion PSF and its removal by deconvolution
   (scikit-image), space-variant in runs of lines;
+* ``ground.rpc``: RPC00B coefficients (the Level-1 product's replacement sensor model),
+  fitted by least squares to the geometry the ground knows, evaluated ground -> image and
+  inverted image -> ground;
+* ``ground.ortho``: orthorectification through GDAL's RPC transformer with a DEM of heights
+  above the ellipsoid (rasterio), and the geolocation figures: CE90, relative accuracy,
+  misregistration by phase correlation;
 * ``ground.quality``: image-quality figures of a product: ISO 12233 slanted-edge MTF, RER,
   edge overshoot, noise gain, SNR, NIIRS by GIQE 5 (pyBSM), PSNR and SSIM against the static
   product, and a cross-check of the motion MTF against pyBSM's drift and jitter OTFs.
 
 It renders nothing (no renderer, no scene/), and imports only numpy, scipy, scikit-image,
-pyBSM and the lower stage compensation/ (tests/test_layout.py). Units are SI inside;
-image quantities are in pixels of the main imager.
+pyBSM, rasterio (GDAL) and the lower stage compensation/ (tests/test_layout.py). Units are
+SI inside; image quantities are in pixels of the main imager.
 """

@@ -548,14 +548,15 @@ def write_geotiff(path: str | Path, data: np.ndarray, x0: float, y0: float, dx: 
                   dy: float, crs: int | str = 32632, geographic: bool = False,
                   nodata: float | None = None, tiled: bool = False,
                   compress: str | None = None, overviews: tuple[int, ...] = (),
-                  transform=None) -> None:
+                  transform=None, rpcs=None) -> None:
     """Write a GeoTIFF with rasterio: north-up from ``x0, y0, dx, dy``, or on any affine grid
     (``transform``, a rasterio/affine ``Affine``: a rotated image product).
 
     ``data``: (H, W) or (bands, H, W); ``x0, y0``: upper-left outer corner; ``dx, dy`` > 0
     pixel size in map units; ``crs``: an EPSG code or a WKT / PROJ string (``geographic`` is
     kept for older callers: the CRS says it); ``tiled``, ``compress`` ('deflate', 'lzw', ...)
-    and ``overviews`` (decimation factors) as GDAL writes them.
+    and ``overviews`` (decimation factors) as GDAL writes them; ``rpcs`` (a
+    :class:`rasterio.rpc.RPC`): RPC00B coefficients in the file's RPC tag.
     """
     import rasterio
     from affine import Affine
@@ -586,6 +587,8 @@ def write_geotiff(path: str | Path, data: np.ndarray, x0: float, y0: float, dx: 
         profile["compress"] = compress
     with rasterio.open(path, "w", **profile) as ds:
         ds.write(arr)
+        if rpcs is not None:
+            ds.rpcs = rpcs
         if overviews:
             from rasterio.enums import Resampling
 

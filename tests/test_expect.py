@@ -151,3 +151,17 @@ def test_bundled_fast_scenarios_meet_their_expectations(tmp_path):
                          "--out", str(tmp_path / "runs")])
     assert r.exit_code == 0, r.output
     assert f"{len(fast)} of {len(fast)} scenarios passed" in r.output
+
+
+def test_imc_check_skips_a_scenario_whose_data_is_not_fetched(tmp_path):
+    """scenarios/olinda.yaml reads data `make data` fetches: without it, a one-line skip
+    that names the missing file, not a failure of the whole check."""
+    import shutil
+
+    p = tmp_path / "olinda.yaml"
+    shutil.copy(ROOT / "scenarios" / "olinda.yaml", p)  # its data/ is not beside the copy
+    r = cli.invoke(app, ["check", str(p), "--out", str(tmp_path / "runs")])
+    assert r.exit_code == 0, r.output
+    line = next(x for x in r.output.splitlines() if x.startswith("skipped"))
+    assert "olinda" in line and "L7_ETMs.tif" in line and "make data" in line
+    assert "0 of 0 scenarios passed" in r.output

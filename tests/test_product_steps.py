@@ -188,6 +188,19 @@ def test_the_quicklook_shows_the_versions_and_their_differences(product_run):
 
     png = np.asarray(Image.open(path).convert("L"), dtype=float)
     assert png.shape[1] > 600 and np.std(png) > 20
+    # where the difference shows: orthoimages on one grid, differences on one stated scale
+    from imc.outputs.product_report import difference_panels, differences_path
+
+    d = difference_panels(out)
+    assert set(d["ortho"]) >= {"static", "open", "closed", "open_gc", "closed_gc"}
+    assert "static" not in d["diff"] and d["scale_dn"] > 0
+    ok = np.isfinite(d["diff"]["open"]) & np.isfinite(d["diff"]["open_gc"])
+    # the ground correction removes most of the jitter's difference against the static
+    assert np.std(d["diff"]["open_gc"][ok]) < 0.7 * np.std(d["diff"]["open"][ok])
+    assert d["crop"]["static"].shape == (48, 48)
+    diffs = differences_path(out)
+    assert diffs is not None and np.std(np.asarray(Image.open(diffs).convert("L"),
+                                                   dtype=float)) > 20
 
 
 def test_the_report_section_and_rerun_entities_name_the_versions(product_run):
@@ -218,6 +231,9 @@ def test_the_report_section_and_rerun_entities_name_the_versions(product_run):
         assert f"product/{name}" in rec.paths
     assert "product/offset/row/true_open" in rec.paths
     assert "product/offset/col/record_closed" in rec.paths
+    assert {"product/ortho/static", "product/ortho_diff/open", "product/ortho_diff/scale",
+            "product/edge_crop/closed_gc"} <= set(rec.paths)
+    assert "Geolocation (Level-1 product)" in page and "RPC00B" in page
 
 
 def test_metrics_are_written_from_the_labelled_result(product_run):
@@ -234,3 +250,34 @@ def test_metrics_are_written_from_the_labelled_result(product_run):
         true, rec = z["offset/true/open"], z["offset/record/open"]
     rms = np.sqrt(np.mean((rec - true) ** 2, axis=0))
     np.testing.assert_allclose(written["geometry"]["open"]["after"]["rms_px"], rms, rtol=1e-5)
+    # the Level-1 product: RPCs in each GeoTIFF, the DEM beside them, geolocation figures
+    import rasterio
+
+    geo = written["geolocation"]
+    assert max(geo["rpc_fit"]["check_max_px"]) < 0.01
+    assert geo["versions"]["static"]["ce90_m"] < 0.1 * written["gsd_m"]
+    assert geo["versions"]["open"]["ce90_m"] == pytest.approx(
+        geo["versions"]["open"]["from_lines"]["ce90_m"], rel=0.1)
+    # the ground's correction shows in metres too (0.3 px jitter: 0.31 m relative CE90 open,
+    # 0.006 m corrected, measured)
+    v = geo["versions"]
+    assert v["open_gc"]["relative_ce90_m"] < 0.1 * v["open"]["relative_ce90_m"]
+    assert v["closed_gc"]["relative_ce90_m"] < 0.1 * v["closed"]["relative_ce90_m"]
+    with rasterio.open(out / "product" / "open_gc.tif") as ds:
+        assert ds.rpcs is not None and abs(ds.rpcs.line_off) > 0
+    with rasterio.open(out / "product" / "dem.tif") as ds:
+        assert np.all(np.isfinite(ds.read(1)))
+        dem_crs = ds.crs.to_wkt()
+    # as a user orthorectifies the files: open.tif's RPCs and dem.tif through GDAL give the
+    # run's own orthoimage
+    from affine import Affine
+
+    from ground.ortho import orthorectify
+
+    with np.load(out / "product" / "product.npz") as z:
+        mine, t = z["ortho/open"], Affine(*z["ortho_transform"])
+    with rasterio.open(out / "product" / "open.tif") as ds:
+        img, rpcs = ds.read(1).astype(np.float64), ds.rpcs
+    again = orthorectify(img, rpcs, str(out / "product" / "dem.tif"), t, mine.shape, dem_crs)
+    ok = np.isfinite(mine) & np.isfinite(again)
+    assert ok.mean() > 0.3 and np.max(np.abs(again[ok] - mine[ok])) < 1e-3

@@ -12,7 +12,12 @@ from pathlib import Path
 
 from imc.io import atomic_write, load_sweep_results
 from imc.outputs.figures import Figure, run_figures, sweep_figures
-from imc.outputs.product_report import product_html, quicklook_path, write_quicklook
+from imc.outputs.product_report import (
+    differences_path,
+    product_html,
+    quicklook_path,
+    write_quicklook,
+)
 
 CSS = """
 body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;color:#222;padding:0 1em}
@@ -124,6 +129,12 @@ def write_run_report(run_dir: Path, drawn: Sequence[Figure] | None = None) -> Pa
                 "and restored (one grey scale), over each line's offset on the nominal grid: "
                 "the camera model's truth and the ground's estimate from the loop's "
                 "record."))]))
+        diffs = differences_path(run_dir)
+        if diffs is not None:
+            parts.extend(_figures_html([Figure(diffs, "Where the difference shows", (
+                "Each version orthorectified through its RPCs and the scene's DEM onto one "
+                "map grid, its difference against the static orthoimage on one stated "
+                "scale, and the slanted-square target's edge at full resolution."))]))
     parts.extend(_figures_html(run_figures(run_dir, drawn)))
     out = run_dir / "report.html"
     page = _page(f"imcsim run: {m.get('scenario', run_dir.name)}", parts)

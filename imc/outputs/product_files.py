@@ -1,8 +1,10 @@
 """The main imager's product written from its labelled result
 (:func:`imc.wiring.product.product_dataset`): metrics.json's ``product`` section
-(:func:`product_metrics`, every key as before), and in ``product/`` the GeoTIFFs of the
-scene's products, ``lines.csv`` (each line's offsets) and ``product.npz`` (all arrays), each
-written atomically (:func:`write_product`)."""
+(:func:`product_metrics`, every key as before, and ``geolocation``: the Level-1 figures), and
+in ``product/`` the GeoTIFFs of the scene's products (each with its RPC00B coefficients),
+``dem.tif`` (the scene's heights above the ellipsoid the RPCs are orthorectified with),
+``lines.csv`` (each line's offsets) and ``product.npz`` (all arrays, the orthoimages too),
+each written atomically (:func:`write_product`)."""
 
 from __future__ import annotations
 
@@ -99,8 +101,23 @@ def product_metrics(ds: xr.Dataset, files: list[Path] | None = None) -> dict:
         "geometry": {str(n): _geometry(ds, str(n)) for n in ds.moving.values},
         "quality": quality,
         "restoration": restoration_gain(quality),
+        "geolocation": _json(a.get("geolocation")),
         "files": [str(f) for f in (files or [])],
     }
+
+
+def _json(v):
+    """Nested figures as strict JSON: NaN and inf -> None, numpy numbers -> float."""
+    if isinstance(v, dict):
+        return {str(k): _json(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_json(x) for x in v]
+    if isinstance(v, bool | str) or v is None:
+        return v
+    if isinstance(v, int | np.integer):
+        return int(v)
+    f = float(v)
+    return f if np.isfinite(f) else None
 
 
 def write_product(ds: xr.Dataset, folder: Path) -> list[Path]:
@@ -119,8 +136,13 @@ def write_product(ds: xr.Dataset, folder: Path) -> list[Path]:
               else np.zeros(2))
         path = folder / f"{name}.tif"
         _write_tif(path, ds.image.sel(version=name).values.astype(np.float32),
-                   transform @ Affine.translation(float(sh[1]), float(sh[0])), crs)
+                   transform @ Affine.translation(float(sh[1]), float(sh[0])), crs,
+                   ds.attrs.get("rpc", {}).get(str(name)))
         files.append(path)
+    if "dem_m" in ds:  # the DEM the RPCs are orthorectified with: heights above the ellipsoid
+        _write_tif(folder / "dem.tif", ds.dem_m.values, Affine(*ds.attrs["dem_transform"]),
+                   ds.attrs["ortho_crs"])
+        files.append(folder / "dem.tif")
     moving = [str(n) for n in ds.moving.values]
     header = ["line", "t_s"] + [f"{k}_{n}_{a}" for k in ("true", "record", "perfect")
                                 for n in moving for a in ("row", "col")]
@@ -142,13 +164,27 @@ def write_product(ds: xr.Dataset, folder: Path) -> list[Path]:
     for src in ("true", "record", "perfect"):
         arrays |= {f"offset/{src}/{n}": ds.offset_px.sel(source=src, moving=n).values
                    for n in moving}
+    if "ortho" in ds:  # the orthoimages on one map grid, the check points' errors
+        arrays |= {f"ortho/{n}": ds.ortho.sel(version=n).values for n in ds.version.values}
+        arrays |= {f"check_error/{n}": ds.check_error_m.sel(version=n).values
+                   for n in ds.version.values}
+        arrays["check_xy_m"] = ds.check_xy_m.values
+        arrays["ortho_transform"] = np.asarray(ds.attrs["ortho_transform"])
     write_npz(folder / "product.npz", **arrays, line_t_s=ds.line_t_s.values)
     files.append(folder / "product.npz")
     return files
 
 
-def _write_tif(path: Path, img: np.ndarray, transform, crs: str) -> None:
+def _write_tif(path: Path, img: np.ndarray, transform, crs: str, rpc: dict | None = None
+               ) -> None:
+    """A GeoTIFF (float, NaN nodata) on ``transform``; with ``rpc`` (GDAL's RPC keys) its
+    RPC00B coefficients too (rasterio's ``dataset.rpcs``: GDAL writes the RPC tag)."""
+    from rasterio.rpc import RPC
+
     from scene.geotiff import write_geotiff
 
-    atomic_write(path, lambda tmp: write_geotiff(tmp, img, 0.0, 0.0, 1.0, 1.0, crs=crs,
-                                                 nodata=float("nan"), transform=transform))
+    def write(tmp):
+        write_geotiff(tmp, img, 0.0, 0.0, 1.0, 1.0, crs=crs, nodata=float("nan"),
+                      transform=transform, rpcs=None if rpc is None else RPC.from_gdal(rpc))
+
+    atomic_write(path, write)

@@ -68,6 +68,13 @@ def blueprint(n_blocks: int, has_render: bool, has_product: bool = False):
                                         origin="product", contents=["+ product/*"]))
         imager.append(rrb.TimeSeriesView(name="product: each line's offset (px)",
                                          origin="product/offset"))
+        imager.append(rrb.Spatial2DView(name="product: orthoimages on one map grid",
+                                        origin="product/ortho"))
+        imager.append(rrb.Spatial2DView(name="product: each version less the static "
+                                        "(scale in product/ortho_diff/scale)",
+                                        origin="product/ortho_diff"))
+        imager.append(rrb.Spatial2DView(name="product: the target's edge at full resolution",
+                                        origin="product/edge_crop"))
     left.append(rrb.Tabs(*imager))
     motion = [rrb.TimeSeriesView(name=f"{a} motion at the main imager (px)",
                                  origin=f"motion/{a}") for a in AXES]

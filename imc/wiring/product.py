@@ -20,6 +20,11 @@ TDI imagers alike, as a short composition of pure steps with typed hand-offs.
 5. :func:`measure_quality`: slanted-edge MTF at Nyquist, RER and overshoot both ways, noise
    gain and SNR on the square's flat inside, NIIRS by GIQE 5 (pyBSM) on the target; PSNR and
    SSIM against the static product on the scene.
+6. :func:`imc.wiring.level1.level1_study` (a TDI strip): the product as a Level-1 product,
+   RPCs fitted to the geometry the ground knows for each version, every version
+   orthorectified through GDAL's RPC transformer with the scene's DEM, and its geolocation
+   in metres (CE90, relative accuracy, misregistration against the static) at check points
+   whose true ground positions the camera model gives.
 
 :func:`product_study` composes them into one labelled :class:`xarray.Dataset` (dims
 ``version``, ``moving``, ``source``, ``stage``, ``axis``, ``direction``, ``line``, ``col``);
@@ -735,9 +740,9 @@ def georeference(m: Models, plan: ProductPlan) -> tuple[tuple[float, ...], str]:
     # pixel centres at integer (col, row): the corner of pixel (0, 0) is half a pixel before
     transform = (float(ce[0]), float(ce[1]), float(ce[2] - 0.5 * (ce[0] + ce[1])),
                  float(cn[0]), float(cn[1]), float(cn[2] - 0.5 * (cn[0] + cn[1])))
-    lat, lon = m.scenario.scene.center_lat_deg, m.scenario.scene.center_lon_deg
-    crs = f"+proj=tmerc +lat_0={lat} +lon_0={lon} +k=1 +x_0=0 +y_0=0 +ellps=WGS84 +units=m"
-    return transform, crs
+    from imc.wiring.level1 import MapFrame
+
+    return transform, MapFrame.of(m).crs
 
 
 def _chunk_store(out: Path, digest: str, fresh: bool) -> Path:
@@ -785,6 +790,10 @@ def run_study(m: Models, res, plan: ProductPlan, samples: int, store: Path,
     ds = product_dataset(rendered, ground, quality, samples)
     ds.attrs["quality_s"] = time.perf_counter() - t0
     ds.attrs["transform"], ds.attrs["crs"] = georeference(m, plan)
+    if plan.imager.scanning:  # step 6: the Level-1 product (RPCs, ortho, geolocation)
+        from imc.wiring.level1 import add_level1, level1_study
+
+        ds = add_level1(ds, level1_study(m, plan, versions, ground, samples, gsd_m(m)))
     return ds, rendered
 
 

@@ -26,7 +26,10 @@ compiled kernels, :mod:`correlator.kernels`, on threads over the stack; FFTs thr
    search runs only for blocks whose result is not settled within that distance of it.
 4. sub-pixel: ``fourier`` (default): Newton's method on the continuous correlation evaluated
    from the spectrum (exact band-limited interpolation), first on the central band, then on the
-   full band with Knapp-Carter SNR weights; blocks moved by more than m (or all, with
+   full band with Knapp-Carter SNR weights: the first pass, ref's window moved to the shift on
+   the same cur spectrum, less the bias its unlike windows give (measured on the reference
+   against itself, :meth:`Correlator._window_reference`). Blocks moved by more than m, those
+   whose first pass needs them (:meth:`Correlator._needs_precise`; all with
    ``rewindow=True``) get passes with both windows on the common content: ref's zero within
    whole-pixel margins that hold the shift, cur's the same moved by the estimate (each block
    less its window mean). A block's pass reference is kept while its margins hold, so a

@@ -27,7 +27,8 @@ this tree), on the same draws (same seed, same test-image code), and prints one 
 Two further modes of this tree alone (issue 35):
 
 - ``--tracking``: the tracking path (one :class:`Correlator` of 64 fixed 128^2 references,
-  all cores), the default (adaptive) against the precise (``rewindow=True``) and the
+  all cores; strong, medium and a mixed batch, half strong and half smooth 1/f^2.5 texture
+  of 8 % contrast), the default (adaptive) against the precise (``rewindow=True``) and the
   one-FFT (``rewindow=False``) paths, timed alternately in one process (``--rounds`` rounds;
   the medians and the median of the per-round ratios), with each path's RMS error over the
   Cramer-Rao bound and the fraction of blocks re-windowed, on the same pairs.
@@ -166,16 +167,24 @@ def tracking(pairs: int, rounds: int, seed: int) -> None:
     """Print the ``--tracking`` table (see the module doc)."""
     from correlator.bounds import crlb_px
     from correlator.core import Correlator
-    from correlator.testimages import MEAN_LEVEL, texture_pairs
+    from correlator.testimages import MEAN_LEVEL, image_pairs, powerlaw_images, texture_pairs
 
     rng = np.random.default_rng(seed)
     n_track = 64
     print("| texture (SNR 10), 64 blocks of 128^2 | path | correlations/s (median of "
           f"{rounds}) | best | RMS / CRLB | RMS (px) | re-windowed |")
     print("|---|---|---|---|---|---|---|")
-    for tex in ("strong", "medium"):
-        ref, cur, d, clean = texture_pairs(pairs, 128, rng, snr=10.0, texture=tex,
-                                           return_clean=True)
+    for tex in ("strong", "medium", "mixed"):
+        if tex == "mixed":  # half strong, half smooth (1/f^2.5, contrast 8 %), interleaved
+            a = texture_pairs(pairs // 2, 128, rng, snr=10.0, return_clean=True)
+            b = image_pairs(powerlaw_images(8, 384, 2.5, rng), pairs - pairs // 2, 128, rng,
+                            snr=10.0, contrast=0.08, return_clean=True)
+            order = rng.permutation(pairs)
+            ref, cur, d, clean = (np.concatenate([x, y])[order] for x, y in zip(a, b,
+                                                                              strict=True))
+        else:
+            ref, cur, d, clean = texture_pairs(pairs, 128, rng, snr=10.0, texture=tex,
+                                               return_clean=True)
         bound = crlb_px(clean, MEAN_LEVEL / 10.0)
         acc = {}
         for name, rw in PATHS.items():

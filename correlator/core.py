@@ -419,6 +419,9 @@ class Correlator:
         self._fp_fw: np.ndarray | None = None
         self._fp_m = np.zeros((n, 3, 3))
         self._fp_bias = np.zeros((n, 2))
+        # reference spectra under cur's window (the first pass's bias), filled on demand
+        self._refc: np.ndarray | None = None
+        self._refc_ready = np.zeros(n, bool)
         masked = o.detection == "masked" or (o.detection == "auto"
                                              and self.max_shift_px > min(h, w) / 4)
         # unwindowed reference blocks less their means: for the masked search, Lucas-Kanade
@@ -518,6 +521,7 @@ class Correlator:
                 if cache and self._fp_wconj is None:
                     self._fp_wconj = np.empty_like(self._ref_wconj)
                     self._fp_fw = np.empty_like(self._ref_fw)
+                    self._refc = np.empty_like(self._ref_wconj)
                 parts = self._parallel(
                     lambda s: self._measure(cur_arr[s], idx[s],
                                             None if pred is None else pred[s], cache), n)
@@ -848,7 +852,7 @@ class Correlator:
             key = mg.reshape(len(blk), 4)
             miss = np.flatnonzero(np.any(self._fp_key[rows] != key, axis=1))
             if len(miss):
-                wc, fw, mm, bias = self._window_reference(rows[miss], mg[miss])
+                wc, fw, mm, bias = self._window_reference(rows[miss], mg[miss], cache=True)
                 self._fp_wconj[rows[miss]] = wc
                 self._fp_fw[rows[miss]] = fw
                 self._fp_m[rows[miss]] = mm
@@ -867,7 +871,7 @@ class Correlator:
         return (d2 - np.where(np.isfinite(bias), bias, 0.0), crlb,
                 _settled(step, crlb, NEWTON_TOL_PX), rho, bias)
 
-    def _window_reference(self, rows: np.ndarray, mg: np.ndarray):
+    def _window_reference(self, rows: np.ndarray, mg: np.ndarray, cache: bool = False):
         """The first pass's reference terms of blocks ``rows`` windowed with zero margins
         mg (m, 2, 2): W conj(R), the detection's weights, the CRLB sums, and the bias (m, 2)
         px that the windows give the first pass's estimate.
@@ -880,7 +884,9 @@ class Correlator:
         synthetic texture a few tenths of a sigma). The bias is the same pass run on the
         reference against itself under cur's window, whose noise x noise term (the noise's
         own correlation, a peak at lag 0 that would shrink the estimate) is removed
-        (:func:`kernels.self_cross`); it is cached with the reference."""
+        (:func:`kernels.self_cross`); it is cached with the reference, and with ``cache``
+        (rows unique) the reference's spectrum under cur's window too (it does not depend on
+        the margins)."""
         lay = self._lay
         h, w = self.shape
         wy = _pass_windows(h, lay.taper[0], mg[:, 0, 0], mg[:, 0, 1])
@@ -888,8 +894,16 @@ class Correlator:
         ref_w, _ = self._prep(self._ref_in, rows, wy, wx)
         spec = fftbackend.rfft2(ref_w)
         wc, fw, _, mm, noise = self._ref_terms(spec, _energy(wy, wx))
-        ref_c, _ = self._prep(self._ref_in, rows, lay.wy_cur[None], lay.wx_cur[None])
-        other = fftbackend.rfft2(ref_c)
+        if cache:
+            todo = rows[~self._refc_ready[rows]]
+            if len(todo):
+                ref_c, _ = self._prep(self._ref_in, todo, lay.wy_cur[None], lay.wx_cur[None])
+                self._refc[todo] = fftbackend.rfft2(ref_c)
+                self._refc_ready[todo] = True
+            other = self._refc[rows]
+        else:
+            ref_c, _ = self._prep(self._ref_in, rows, lay.wy_cur[None], lay.wx_cur[None])
+            other = fftbackend.rfft2(ref_c)
         # cur's window is flat (1) on ref's support: the windows' product sums to ref's sum
         s = noise * (wy.sum(axis=1, dtype=np.float64) * wx.sum(axis=1, dtype=np.float64))
         y = np.empty(spec.shape, np.complex64)

@@ -27,7 +27,8 @@ this tree), on the same draws (same seed, same test-image code), and prints one 
 Two further modes of this tree alone (issue 35):
 
 - ``--tracking``: the tracking path (one :class:`Correlator` of 64 fixed 128^2 references,
-  all cores), the default (adaptive) against the precise (``rewindow=True``) and the
+  all cores; strong, medium and a mixed batch, half strong and half smooth 1/f^2.5 texture
+  of 8 % contrast), the default (adaptive) against the precise (``rewindow=True``) and the
   one-FFT (``rewindow=False``) paths, timed alternately in one process (``--rounds`` rounds;
   the medians and the median of the per-round ratios), with each path's RMS error over the
   Cramer-Rao bound and the fraction of blocks re-windowed, on the same pairs.
@@ -37,6 +38,14 @@ Two further modes of this tree alone (issue 35):
   off, over the valid) of the default, precise and one-FFT paths against scikit-image's
   ``phase_cross_correlation`` (upsample 100) within 0.5 px on the same pairs; and
   checkerboards and stripes (periodic, one-directional) flagged valid.
+- ``--opencv``: the default path against OpenCV's ``phaseCorrelate`` with a Hann window (made
+  once) on the same 128^2 pairs (strong and medium texture, SNR 10, shifts within +-4 px),
+  timed alternately in one process, ``--rounds`` rounds (median and best): tracking (one
+  :class:`Correlator` of 64 fixed references, batches of 64, both cores and one thread) and
+  independent pairs (``measure_shift`` on 256 pairs, both cores and one thread) against
+  OpenCV one pair per call on one thread and on a pool of two; the medians of the per-round
+  ratios to OpenCV's best of the two, and each one's RMS error over the Cramer-Rao bound.
+  Needs ``cv2`` (the ``bench`` extra).
 """
 
 from __future__ import annotations
@@ -158,16 +167,24 @@ def tracking(pairs: int, rounds: int, seed: int) -> None:
     """Print the ``--tracking`` table (see the module doc)."""
     from correlator.bounds import crlb_px
     from correlator.core import Correlator
-    from correlator.testimages import MEAN_LEVEL, texture_pairs
+    from correlator.testimages import MEAN_LEVEL, image_pairs, powerlaw_images, texture_pairs
 
     rng = np.random.default_rng(seed)
     n_track = 64
     print("| texture (SNR 10), 64 blocks of 128^2 | path | correlations/s (median of "
           f"{rounds}) | best | RMS / CRLB | RMS (px) | re-windowed |")
     print("|---|---|---|---|---|---|---|")
-    for tex in ("strong", "medium"):
-        ref, cur, d, clean = texture_pairs(pairs, 128, rng, snr=10.0, texture=tex,
-                                           return_clean=True)
+    for tex in ("strong", "medium", "mixed"):
+        if tex == "mixed":  # half strong, half smooth (1/f^2.5, contrast 8 %), interleaved
+            a = texture_pairs(pairs // 2, 128, rng, snr=10.0, return_clean=True)
+            b = image_pairs(powerlaw_images(8, 384, 2.5, rng), pairs - pairs // 2, 128, rng,
+                            snr=10.0, contrast=0.08, return_clean=True)
+            order = rng.permutation(pairs)
+            ref, cur, d, clean = (np.concatenate([x, y])[order] for x, y in zip(a, b,
+                                                                              strict=True))
+        else:
+            ref, cur, d, clean = texture_pairs(pairs, 128, rng, snr=10.0, texture=tex,
+                                               return_clean=True)
         bound = crlb_px(clean, MEAN_LEVEL / 10.0)
         acc = {}
         for name, rw in PATHS.items():
@@ -252,6 +269,65 @@ def smooth(pairs: int, seed: int) -> None:
         f"{k} {v} of {total}" for k, v in valid.items()))
 
 
+def _opencv_rows(tex: str, cv: dict, rounds: int, rng: np.random.Generator) -> None:
+    """The ``--opencv`` table's rows of one texture (see the module doc)."""
+    from correlator.bounds import crlb_px
+    from correlator.core import Correlator, measure_shift
+    from correlator.testimages import MEAN_LEVEL, texture_pairs
+
+    n_track, n_pairs = 64, 256
+    ref, cur, d, clean = texture_pairs(n_pairs, 128, rng, snr=10.0, texture=tex,
+                                       return_clean=True)
+    bound = crlb_px(clean, MEAN_LEVEL / 10.0)
+    r64, c64 = ref.astype(np.float64), cur.astype(np.float64)
+    track = {w: Correlator(ref[:n_track], workers=w) for w in (-1, 1)}
+    calls = {
+        "imcsim tracking, default, 2 threads": (lambda: track[-1].measure(cur[:n_track]),
+                                                 n_track),
+        "imcsim tracking, default, 1 thread": (lambda: track[1].measure(cur[:n_track]),
+                                                n_track),
+        "imcsim measure_shift, default, 2 threads": (lambda: measure_shift(ref, cur), n_pairs),
+        "imcsim measure_shift, default, 1 thread": (
+            lambda: measure_shift(ref, cur, workers=1), n_pairs),
+    }
+    for name, fn in cv.items():
+        calls[name] = (lambda fn=fn: fn(r64, c64), n_pairs)
+    acc = {}
+    for name, (fn, n) in calls.items():  # also the warm-up call
+        out = fn()
+        shift = out.shift if hasattr(out, "shift") else out[0]
+        acc[name] = _rms(shift - d[:n]) / _rms(bound[:n])
+    rates = {k: [] for k in calls}
+    for _ in range(rounds):  # alternated: a neighbour's load falls on every one alike
+        for name, (fn, n) in calls.items():
+            t0 = time.perf_counter()
+            fn()
+            rates[name].append(n / (time.perf_counter() - t0))
+    best_cv = np.max([rates[k] for k in cv], axis=0)  # OpenCV's best of 1 / 2 per round
+    for name in calls:
+        r = np.array(rates[name])
+        print(f"| {tex} | {name} | {np.median(r):,.0f} | {r.max():,.0f} | "
+              f"{np.median(r / best_cv):.2f}x | {acc[name]:.3f} |")
+
+
+def opencv(rounds: int, seed: int) -> None:
+    """Print the ``--opencv`` table (see the module doc)."""
+    from imc.studies.correlator_peers import peers
+
+    cv = {n: fn for t in (1, 2) for n, fn in peers(t, hann=True).items()
+          if n.startswith("OpenCV")}
+    if not cv:
+        raise SystemExit("--opencv needs cv2 (pip install opencv-python-headless)")
+    rng = np.random.default_rng(seed)
+    print(f"load average before: {os.getloadavg()}")
+    print("| texture (SNR 10), 128^2 | estimator | per s (median of "
+          f"{rounds}) | best | ÷ OpenCV's best (median of per-round ratios) | RMS / CRLB |")
+    print("|---|---|---|---|---|---|")
+    for tex in ("strong", "medium"):
+        _opencv_rows(tex, cv, rounds, rng)
+    print(f"load average after: {os.getloadavg()}")
+
+
 def _sub(tree: Path, *args: str) -> dict:
     env = {**os.environ, "PYTHONPATH": str(tree), "OMP_NUM_THREADS": "1"}
     res = subprocess.run([sys.executable, __file__, "--child", *args], env=env, check=True,
@@ -280,8 +356,13 @@ def main() -> None:
                     "accuracy, this tree alone (see the module doc)")
     ap.add_argument("--smooth", action="store_true", help="validity on generated smooth "
                     "textures against scikit-image, this tree alone")
+    ap.add_argument("--opencv", action="store_true", help="the default path's speed against "
+                    "OpenCV's phaseCorrelate on the same pairs, this tree alone")
     ap.add_argument("--child", nargs="*")
     a = ap.parse_args()
+    if a.opencv:
+        opencv(a.rounds, a.seed)
+        return
     if a.tracking or a.smooth:
         if a.tracking:
             tracking(a.pairs, a.rounds, a.seed)

@@ -26,7 +26,10 @@ compiled kernels, :mod:`correlator.kernels`, on threads over the stack; FFTs thr
    search runs only for blocks whose result is not settled within that distance of it.
 4. sub-pixel: ``fourier`` (default): Newton's method on the continuous correlation evaluated
    from the spectrum (exact band-limited interpolation), first on the central band, then on the
-   full band with Knapp-Carter SNR weights; blocks moved by more than m (or all, with
+   full band with Knapp-Carter SNR weights: the first pass, ref's window moved to the shift on
+   the same cur spectrum, less the bias its unlike windows give (measured on the reference
+   against itself, :meth:`Correlator._window_reference`). Blocks moved by more than m, those
+   whose first pass needs them (:meth:`Correlator._needs_precise`; all with
    ``rewindow=True``) get passes with both windows on the common content: ref's zero within
    whole-pixel margins that hold the shift, cur's the same moved by the estimate (each block
    less its window mean). A block's pass reference is kept while its margins hold, so a
@@ -137,20 +140,27 @@ CHUNK_BLOCKS = 32
 #: first pass (:meth:`Correlator._needs_precise`) when that pass predicts an error above
 #: ADAPT_MAX_CRLB_PX (px, either axis: weak or smooth texture; both images' weights raise
 #: the valid fraction there) or below ADAPT_MIN_CRLB_PX (px, for 128^2 blocks, scaled as
-#: 128 / block size: high SNR, where the first pass's window bias, 0.003-0.008 px noise-free on
-#: the strong texture at 128^2, an edge effect, would dominate; at 256^2 with 0.0025 px the
-#: strong texture at SNR 10 keeps the first pass, 1.21x the bound against the passes' 1.18x,
-#: and SNR 30-100 takes the passes, 1.02-1.05x against the first pass's 1.17-2.05x), finds a
-#: PSR below ADAPT_MIN_PSR, has not settled, differs from the fixed windows' estimate by more
-#: than ADAPT_MAX_GAP_SIGMA predicted sigma, or has a broad peak: a restoring ratio
-#: (:mod:`correlator.tail`) above ADAPT_MAX_RHO on an axis, i.e. the texture's power at low
-#: frequencies (0.93 on the strong texture, 0.96 on the medium one and on the quickstart's
-#: rendered 64^2 blocks, 0.96-0.98 on 1/f^3-1/f^3.5 texture), where the first pass was off by
-#: 2-10x its predicted error: the quickstart's tracker error went from 0.015 to 0.067 px
+#: 128 / block size: high SNR, where what is left of the first pass's window error, the
+#: Fourier interpolation of cur near ref's support, would dominate: strong texture at SNR 100
+#: 1.54x the CRLB against the passes' 1.15x; at 256^2 with 0.0025 px the strong texture at
+#: SNR 10 keeps the first pass, 1.21x the bound against the passes' 1.18x, and SNR 30-100
+#: takes the passes, 1.02-1.05x against the first pass's 1.17-2.05x), finds a PSR below
+#: ADAPT_MIN_PSR, has not settled, removed a window bias (:meth:`Correlator._window_reference`)
+#: of more than ADAPT_MAX_BIAS_SIGMA predicted sigma (its removal is good to ~5 % of it: on
+#: the flight test's rendered blocks the first pass differed from the passes by 0.84 sigma
+#: rms where the bias was 3-10 sigma, 1.2 at 10-30, 2.4 beyond 30), or has a broad peak: a
+#: restoring ratio (:mod:`correlator.tail`) above ADAPT_MAX_RHO on an axis, i.e. the
+#: texture's power at low frequencies (0.93 on the strong texture, 0.96 on the medium one
+#: and on the quickstart's rendered 64^2 blocks, 0.96-0.98 on 1/f^3-1/f^3.5 texture). With
+#: 0.97 the quickstart's blocks kept their first pass (0.74 sigma from the passes), but its
+#: predicted error is the first pass's, 20 % above the passes' (0.0152 against 0.0126 px for
+#: a measured 0.015), the loop weighed the measurements less and its residual went from
+#: 0.0175 to 0.019 px (52x to 48x); the medium texture at SNR 10 would take the first pass
+#: at 1.08x the passes' error
 ADAPT_MAX_CRLB_PX = 0.05
 ADAPT_MIN_PSR = 8.0
 ADAPT_MIN_CRLB_PX = 0.005
-ADAPT_MAX_GAP_SIGMA = 1.0
+ADAPT_MAX_BIAS_SIGMA = 10.0
 ADAPT_MAX_RHO = 0.95
 #: the first pass's reference window leaves this much (px) of cur's flat region beyond the
 #: shift on either side, for the shift's own error
@@ -408,6 +418,10 @@ class Correlator:
         self._fp_wconj: np.ndarray | None = None
         self._fp_fw: np.ndarray | None = None
         self._fp_m = np.zeros((n, 3, 3))
+        self._fp_bias = np.zeros((n, 2))
+        # reference spectra under cur's window (the first pass's bias), filled on demand
+        self._refc: np.ndarray | None = None
+        self._refc_ready = np.zeros(n, bool)
         masked = o.detection == "masked" or (o.detection == "auto"
                                              and self.max_shift_px > min(h, w) / 4)
         # unwindowed reference blocks less their means: for the masked search, Lucas-Kanade
@@ -507,6 +521,7 @@ class Correlator:
                 if cache and self._fp_wconj is None:
                     self._fp_wconj = np.empty_like(self._ref_wconj)
                     self._fp_fw = np.empty_like(self._ref_fw)
+                    self._refc = np.empty_like(self._ref_wconj)
                 parts = self._parallel(
                     lambda s: self._measure(cur_arr[s], idx[s],
                                             None if pred is None else pred[s], cache), n)
@@ -782,14 +797,12 @@ class Correlator:
         precise = np.ones(n, bool) if o.rewindow else far.copy()
         if o.rewindow is not True:
             first = np.flatnonzero(fin & ~far)
-            d[first], crlb[first], settled[first], rho[first] = self._first_pass(
+            d[first], crlb[first], settled[first], rho[first], bias = self._first_pass(
                 first, ridx, cspec, noise, d, cache)
             if o.rewindow is None and len(first):  # adaptive: the passes where needed
-                # the first pass against the fixed windows' estimate: one Newton step on y
-                # from d is the way to its peak (differs by the windows' bias, if any)
-                gap = np.abs(self._newton(y, first, d[first], 1)[2]).max(axis=1)
                 precise[first] = self._needs_precise(
-                    crlb[first], psr[first], settled[first], gap, rho[first],
+                    crlb[first], psr[first], settled[first], np.abs(bias).max(axis=1),
+                    rho[first],
                     ADAPT_MIN_CRLB_PX * 128.0 / min(h, w))
         sane = trusted | (np.abs(d - d0).max(axis=1) < lay.q + 1)
         # ---- common-content passes
@@ -801,68 +814,104 @@ class Correlator:
 
     @staticmethod
     def _needs_precise(crlb: np.ndarray, psr: np.ndarray, settled: np.ndarray,
-                       gap: np.ndarray, rho: np.ndarray,
+                       bias: np.ndarray, rho: np.ndarray,
                        min_crlb_px: float = ADAPT_MIN_CRLB_PX) -> np.ndarray:
         """Which blocks (n,) need the common-content passes after their first pass, from
         the block's own statistics (never the truth).
 
         A predicted error ``crlb`` (n, 2) px above :data:`ADAPT_MAX_CRLB_PX` (weak or smooth
         texture, where both images' weights lower the error and raise the valid fraction) or
-        below ``min_crlb_px`` (high SNR, where the first pass's window bias would dominate;
-        :data:`ADAPT_MIN_CRLB_PX` at 128^2); a PSR ``psr`` (n,) below
-        :data:`ADAPT_MIN_PSR` (near the detection floor);
-        a first pass that has not ``settled`` (n,); a ``gap`` (n,) px between its estimate
-        and the fixed windows' of more than :data:`ADAPT_MAX_GAP_SIGMA` predicted errors (the
-        windows bias the estimate); or a broad peak, a restoring ratio ``rho`` (n, 2) above
-        :data:`ADAPT_MAX_RHO` on an axis (power at the lowest frequencies, where the windows'
-        bias grows; NaN counts as broad).
+        below ``min_crlb_px`` (high SNR, where the first pass's interpolation error would
+        dominate; :data:`ADAPT_MIN_CRLB_PX` at 128^2); a PSR ``psr`` (n,) below
+        :data:`ADAPT_MIN_PSR` (near the detection floor); a first pass that has not
+        ``settled`` (n,); a window bias ``bias`` (n,) px removed from it (the larger axis)
+        above :data:`ADAPT_MAX_BIAS_SIGMA` predicted errors, or not finite; or a broad peak,
+        a restoring ratio ``rho`` (n, 2) above :data:`ADAPT_MAX_RHO` on an axis (power at the
+        lowest frequencies; NaN counts as broad).
         """
         c = crlb.max(axis=1)
         return (~settled | (c > ADAPT_MAX_CRLB_PX) | (c < min_crlb_px)
-                | (psr < ADAPT_MIN_PSR) | (gap > ADAPT_MAX_GAP_SIGMA * c)
+                | (psr < ADAPT_MIN_PSR) | ~(bias <= ADAPT_MAX_BIAS_SIGMA * c)
                 | ~(np.max(rho, axis=1) <= ADAPT_MAX_RHO))
 
     def _first_pass(self, blk, ridx, cspec, noise, d, cache):
         """The first pass of blocks ``blk`` at their shifts d (n, 2) px: ref windowed zero
         within whole-pixel margins that put its support, moved by d, inside cur's flat
         region (:func:`_first_margins`), against the cur spectra ``cspec`` already made, so
-        no further FFT of cur (a tracker keeps the reference for its margins). Returns
-        (d, crlb, settled, restoring ratio) of the blocks."""
+        no further FFT of cur (a tracker keeps the reference for its margins), less the
+        windows' bias (:meth:`_window_reference`). Returns (d, crlb, settled, restoring
+        ratio, the bias removed (n, 2) px) of the blocks."""
         lay = self._lay
         h, w = self.shape
         if not len(blk):
             z = np.zeros((0, 2))
-            return z, z.copy(), np.zeros(0, bool), z.copy()
+            return z, z.copy(), np.zeros(0, bool), z.copy(), z.copy()
         mg = _first_margins(d[blk], lay.margin)
         rows = ridx[blk]
         if cache:
             key = mg.reshape(len(blk), 4)
             miss = np.flatnonzero(np.any(self._fp_key[rows] != key, axis=1))
             if len(miss):
-                wc, fw, _, mm, _ = self._window_reference(rows[miss], mg[miss])
+                wc, fw, mm, bias = self._window_reference(rows[miss], mg[miss], cache=True)
                 self._fp_wconj[rows[miss]] = wc
                 self._fp_fw[rows[miss]] = fw
                 self._fp_m[rows[miss]] = mm
+                self._fp_bias[rows[miss]] = bias
                 self._fp_key[rows[miss]] = key[miss]
             src, fw, srow, m = self._fp_wconj, self._fp_fw, rows, self._fp_m[rows]
+            bias = self._fp_bias[rows]
         else:
-            src, fw, _, m, _ = self._window_reference(rows, mg)
+            src, fw, m, bias = self._window_reference(rows, mg)
             srow = np.arange(len(blk))
         y, _, _ = self._cross(cspec if len(blk) == len(cspec) else cspec[blk], src, fw, srow)
         b = np.arange(len(blk))
         d2, hess, step, _ = self._newton(y, b, d[blk], self.options.iterations)
         crlb = _crlb(m, noise[blk], hess, h * w)
-        return d2, crlb, _settled(step, crlb, NEWTON_TOL_PX), self._restoring(y, b, d2)
+        rho = self._restoring(y, b, d2)
+        return (d2 - np.where(np.isfinite(bias), bias, 0.0), crlb,
+                _settled(step, crlb, NEWTON_TOL_PX), rho, bias)
 
-    def _window_reference(self, rows: np.ndarray, mg: np.ndarray):
-        """:meth:`_ref_terms` (W conj(R), detection weights, CRLB sums, noise) of reference
-        blocks ``rows`` windowed with zero margins mg (m, 2, 2)."""
+    def _window_reference(self, rows: np.ndarray, mg: np.ndarray, cache: bool = False):
+        """The first pass's reference terms of blocks ``rows`` windowed with zero margins
+        mg (m, 2, 2): W conj(R), the detection's weights, the CRLB sums, and the bias (m, 2)
+        px that the windows give the first pass's estimate.
+
+        ref's window is narrower than cur's, so the pass correlates a windowed block against
+        an unwindowed one: sum w(x) s(x) s(x + e) peaks where its gradient
+        -1/2 sum grad(w) s^2 vanishes, off e = 0 wherever the texture's power differs
+        between the window's opposite tapers (a field edge, a building, a bright roof: on the
+        flight test's rendered 64^2 blocks 0.16 px rms, 23 predicted sigma; on stationary
+        synthetic texture a few tenths of a sigma). The bias is the same pass run on the
+        reference against itself under cur's window, whose noise x noise term (the noise's
+        own correlation, a peak at lag 0 that would shrink the estimate) is removed
+        (:func:`kernels.self_cross`); it is cached with the reference, and with ``cache``
+        (rows unique) the reference's spectrum under cur's window too (it does not depend on
+        the margins)."""
         lay = self._lay
         h, w = self.shape
         wy = _pass_windows(h, lay.taper[0], mg[:, 0, 0], mg[:, 0, 1])
         wx = _pass_windows(w, lay.taper[1], mg[:, 1, 0], mg[:, 1, 1])
         ref_w, _ = self._prep(self._ref_in, rows, wy, wx)
-        return self._ref_terms(fftbackend.rfft2(ref_w), _energy(wy, wx))
+        spec = fftbackend.rfft2(ref_w)
+        wc, fw, _, mm, noise = self._ref_terms(spec, _energy(wy, wx))
+        if cache:
+            todo = rows[~self._refc_ready[rows]]
+            if len(todo):
+                ref_c, _ = self._prep(self._ref_in, todo, lay.wy_cur[None], lay.wx_cur[None])
+                self._refc[todo] = fftbackend.rfft2(ref_c)
+                self._refc_ready[todo] = True
+            other = self._refc[rows]
+        else:
+            ref_c, _ = self._prep(self._ref_in, rows, lay.wy_cur[None], lay.wx_cur[None])
+            other = fftbackend.rfft2(ref_c)
+        # cur's window is flat (1) on ref's support: the windows' product sums to ref's sum
+        s = noise * (wy.sum(axis=1, dtype=np.float64) * wx.sum(axis=1, dtype=np.float64))
+        y = np.empty(spec.shape, np.complex64)
+        kernels.self_cross(wc.view(np.float32), spec.view(np.float32),
+                           other.view(np.float32), s, y.view(np.float32))
+        bias = self._newton(y, np.arange(len(rows)), np.zeros((len(rows), 2)),
+                            self.options.iterations)[0]
+        return wc, fw, mm, np.where(np.isfinite(bias), bias, np.nan)
 
     def _fourier_masked(self, y, ridx, cur_arr, noise, d0, cache):
         """Fourier refinement after a masked detection: the lag is good to a bin, so straight

@@ -669,3 +669,33 @@ def both_weights(y, spec, pbox, prow, cbox, crow, cscale, s2r, s2, shrink, alpha
                 c2 += q * ax[j] * ax[j]
             if rows[i] != 0.0:
                 _add_row_moments(m, b, rows[i], ay[i], c0, c1, c2)
+
+
+@nb.njit(**_JIT)
+def self_cross(wconj, spec, other, s, y):
+    """The weighted cross spectrum of a reference against itself under another window, less
+    its noise x noise term: y = W conj(R) R' - s W, with W conj(R) ``wconj`` and R ``spec``
+    the reference's spectrum under one window (W = |W conj(R)| / |R|), R' ``other`` its
+    spectrum under the other window, and s (n,) the noise's expected product per bin
+    (pixel variance times the sum of the two windows' product). Complex arrays (n, h, k) as
+    their interleaved float32 views (n, h, 2k); y likewise."""
+    n, h, k2 = spec.shape
+    k = k2 // 2
+    for b in range(n):
+        sb = np.float32(s[b])
+        for i in range(h):
+            wc = wconj[b, i]
+            r = spec[b, i]
+            o = other[b, i]
+            yr = y[b, i]
+            for j in range(k):
+                wr = wc[2 * j]
+                wi = wc[2 * j + 1]
+                rr = r[2 * j]
+                ri = r[2 * j + 1]
+                a = rr * rr + ri * ri
+                wv = np.sqrt((wr * wr + wi * wi) / a) if a > 0 else np.float32(0.0)
+                orr = o[2 * j]
+                oi = o[2 * j + 1]
+                yr[2 * j] = wr * orr - wi * oi - sb * wv
+                yr[2 * j + 1] = wr * oi + wi * orr

@@ -660,11 +660,10 @@ class CorrelatorConfig(_Model):
     max_crlb_px: float | None = Field(None, gt=0.0, description="largest predicted 1-sigma "
                                       "error of a valid measurement, px (null: none besides "
                                       "false_valid_rate)")
-    rewindow: bool | None = Field(True, description="passes with windows on the common "
-                                  "content: true (default) for every block, null (adaptive) "
-                                  "only where a block's first pass needs them (2.3-2.5x "
-                                  "faster; not yet accurate on rendered scenes), false for "
-                                  "none (one FFT per block)")
+    rewindow: bool | None = Field(None, description="passes with windows on the common "
+                                  "content: null (default) only where a block's first pass "
+                                  "needs them, true for every block (the precise path), "
+                                  "false for none (one FFT per block)")
     trust_prediction_px: float | None = Field(
         None, gt=0.0, le=64.0, description="start the sub-pixel refinement from the "
         "orbit/attitude/DEM prediction, skipping the integer search, while prediction and "

@@ -43,8 +43,8 @@ def test_high_snr_accuracy_kept():
     1.11x over 400 other pairs, unchanged by the weights: at high SNR per bin they are
     flat), and the prediction within 25 % (measured 0.92-0.97: the Immerkaer noise estimate
     is ~9 % high on this texture, whose power reaches the frequencies it reads). The precise
-    path (``rewindow=True``): the default keeps the first pass on these blocks (1.30x here,
-    ``tests/test_correlator_adaptive.py``)."""
+    path (``rewindow=True``): the default keeps the first pass on these blocks
+    (``tests/test_correlator_adaptive.py``)."""
     snr = 10.0
     ref, cur, d, clean = texture_pairs(200, 128, np.random.default_rng(2502), snr=snr,
                                        texture="strong", return_clean=True)

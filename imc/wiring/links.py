@@ -84,7 +84,7 @@ def overlap_baselines(m: Models) -> int:
     return int(max(1, min(np.floor(per.min()), len(m.frame_t_s) - 1)))
 
 
-def _combine(d: np.ndarray, sigma: np.ndarray, valid: np.ndarray
+def combine_blocks(d: np.ndarray, sigma: np.ndarray, valid: np.ndarray
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Blocks (n, B, 2) -> links: inverse-variance mean, its sigma (CRLB), the blocks used
     and the chi-square of the blocks about the mean per axis (n, 2)."""
@@ -181,7 +181,7 @@ def measure_links(m: Models, rec, plant, stage_mean: np.ndarray,
             loop_flag.append(np.zeros(len(parts[1][0]), bool))
     loop = np.concatenate(loop_flag)
     a, b, d, s, v = (np.concatenate(x) for x in zip(*parts, strict=True))
-    mean, sig, nblk, chi2 = _combine(d, s, v)
+    mean, sig, nblk, chi2 = combine_blocks(d, s, v)
     ok = nblk >= 2
     dof = np.maximum(nblk - 1, 0)
     # the record's consistency: the blocks' scatter against their bounds, pooled (>= 1)

@@ -13,7 +13,8 @@ is ``sigma (sqrt(1 - 2 rho) e + sqrt(rho) (nu_b - nu_a))`` with ``nu_k`` frame k
 (``default_rng([*seed, k, 1])``) and ``rho`` :data:`SHARED_FRACTION`, so its variance stays
 ``sigma^2`` and consecutive links correlate by ``-rho``. :meth:`AnalyticPlant.pair_links`
 gives the links of every baseline 1..K the ground's network uses (the loop's own noise for
-baseline 1).
+baseline 1), each longer baseline with the blocks its pair keeps on the sensor
+(``pair_blocks``, as the image plants' ground measures them).
 """
 
 from __future__ import annotations
@@ -43,7 +44,9 @@ class AnalyticPlant:
         actually added, as a fraction of sigma_px (0: noiseless measurements that still report
         sigma_px, for sine sweeps). nominal_px, field_nominal_px : the orbit/attitude
         prediction of the blocks' motion (t -> (N, B, 2)) and of the field point's (t ->
-        (N, 2)), reported with each measurement; None: nothing is predicted.
+        (N, 2)), reported with each measurement; None: nothing is predicted. pair_blocks :
+        (a, b) -> (B,) the blocks a pair of frames a < b keeps on the sensor (the ground's
+        longer baselines); None: all.
     """
 
     def __init__(self, motion_px: MotionFn, centers_px: np.ndarray, sigma_px,
@@ -53,12 +56,14 @@ class AnalyticPlant:
                  field_nominal_px: MotionFn | None = None, chain: bool = False,
                  shared_fraction: float = SHARED_FRACTION,
                  predict_between: Callable[[int, int], tuple[np.ndarray, np.ndarray]]
-                 | None = None):
+                 | None = None,
+                 pair_blocks: Callable[[int, int], np.ndarray] | None = None):
         if not 0.0 <= shared_fraction <= 0.5:
             raise ValueError(f"shared_fraction must be in [0, 0.5], got {shared_fraction}")
         self.chain = bool(chain)
         self.shared_fraction = float(shared_fraction)
         self.predict_between = predict_between
+        self.pair_blocks = pair_blocks
         self.centers_px = np.atleast_2d(np.asarray(centers_px, dtype=np.float64))
         self.n_blocks = len(self.centers_px)
         self.sigma_px = np.broadcast_to(np.asarray(sigma_px, dtype=np.float64),
@@ -141,7 +146,12 @@ class AnalyticPlant:
             if pairs else np.zeros((0, self.n_blocks, 2))
         d = jit[b] - jit[a] + noise * (self.sigma_px * self.noise_scale)
         sigma = np.broadcast_to(np.maximum(self.sigma_px, 1e-12), d.shape).copy()
-        return a, b, d, sigma, np.ones(d.shape[:2], bool)
+        valid = np.ones(d.shape[:2], bool)
+        if self.pair_blocks is not None:  # the blocks a longer baseline keeps on the sensor
+            for i, (aa, bb, j) in enumerate(pairs):
+                if j > 1:
+                    valid[i] = np.asarray(self.pair_blocks(aa, bb), dtype=bool)
+        return a, b, d, sigma, valid
 
     def rereference(self, k: int) -> None:
         self.ref = k

@@ -115,3 +115,24 @@ def test_the_record_is_the_networks_and_predicts_its_error(tmp_path):
                                                                   "sigma_px": 0.002}})
     absolute = np.array(cp["geometry"]["open"]["control_points"]["rms_px"])
     assert np.all(absolute < 0.02)
+
+
+def test_the_grounds_pairs_stay_inside_the_sensors_margin():
+    # a 256-row tracker, 64-px blocks at rows 32 and 160, content moving 83 px (2 frames),
+    # 166 px (4 frames): each pair's reference and current block stay 8 px inside the
+    # sensor (its edges carry the optics' periodic wrap), the loop's cut where it fits, and
+    # a block whose reference would repeat another's content is not used
+    from imc.wiring.links import OVERLAP_MARGIN_PX, pair_corners
+
+    corners = np.array([[32, 16], [32, 144], [160, 16], [160, 144]])
+    lim = np.array([256 - 64, 256 - 64])
+    for rows, kept in ((20, 4), (83, 4), (166, 2)):
+        step = np.tile([rows, 0.4], (4, 1))
+        out, used = pair_corners(corners, step, 64, lim)
+        assert used.sum() == kept
+        for c in (out[used], out[used] + np.rint(step[used]).astype(int)):
+            assert c.min() >= OVERLAP_MARGIN_PX and np.all(c <= lim - OVERLAP_MARGIN_PX)
+        if rows == 20:  # it fits: the loop's chain cut, half the motion before the block
+            assert np.array_equal(out, corners - [10, 0])
+    _, used = pair_corners(corners, np.tile([250.0, 0.0], (4, 1)), 64, lim)
+    assert not used.any()  # the content leaves the sensor: no block

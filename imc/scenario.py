@@ -880,7 +880,7 @@ class GroundControlConfig(_Model):
                             "(1 sigma)")
     gsd_factor: int = Field(4, ge=2, le=16, description="orthoimage: the reference's GSD as a "
                             "multiple of the product's")
-    chip_px: int = Field(32, ge=8, le=256, description="orthoimage: a correlation chip's side, "
+    chip_px: int = Field(32, ge=16, le=256, description="orthoimage: a correlation chip's side, "
                          "reference pixels")
 
 

@@ -108,6 +108,8 @@ def _geometry(m, links, lines: int, **product) -> dict:
             "constant_px": g["constant"].tolist(), "affine_px": g["affine"].tolist(),
             "absolute_px": np.sqrt(np.mean((est - true) ** 2, axis=0)).tolist(),
             "predicted_constant_px": p["constant_px"], "predicted_affine_px": p["affine_px"],
+            "predicted_constant_5_95_px": p["constant_5_95_px"],
+            "predicted_affine_5_95_px": p["affine_5_95_px"],
             "perfect_record_px": geometry_rms(perf - true, t)["constant"].tolist()}
 
 

@@ -36,6 +36,8 @@ from imc.wiring.truth import compute_truth
 ROOT = Path(__file__).resolve().parents[1]
 #: strip lengths (lines) of the analytic-against-rendered comparison: 0.24, 0.72, 1.54 s
 LENGTHS = (2000, 6000, 12800)
+#: the true lines' offsets per (models, lines): every figure of one record shares them
+_TRUTH: dict = {}
 
 
 def _scenario(**product) -> dict:
@@ -59,6 +61,32 @@ def _run(d: dict):
     return m, plant, res, links
 
 
+def _from_run(d: dict, run: Path):
+    """(models, plant, loop result, links) from a rendered run of the same scenario written
+    by ``imc run --save-frames`` (tracks.csv, series.npz, frames.npz): the loop is not run
+    again, the ground's extra baselines are measured on its frames."""
+    from types import SimpleNamespace
+
+    m = build_models(parse_scenario(d))
+    r = np.genfromtxt(run / "tracks.csv", delimiter=",", names=True)
+    n_f, n_b = int(r["frame"].max()) + 1, int(r["block"].max()) + 1
+
+    def col(name):
+        return r[name].reshape(n_f, n_b)
+
+    with np.load(run / "series.npz") as se, np.load(run / "frames.npz") as fr:
+        centers, frames = se["centers_px"], fr["frames"]
+    rec = SimpleNamespace(
+        shift_px=np.stack([col("meas_row_px"), col("meas_col_px")], -1),
+        sigma_px=np.stack([col("crlb_row_px"), col("crlb_col_px")], -1),
+        valid=col("valid").astype(bool), ref_frame=col("ref_frame").astype(int),
+        centers_px=centers, measured=np.ones((n_f, n_b), bool), arrive_s=m.frame_mid_s.copy())
+    plant = SimpleNamespace(frames=frames, stage_mean=np.zeros((n_f, 2)))
+    res = SimpleNamespace(record=rec)
+    links = measure_links(m, rec, plant, plant.stage_mean, 6)
+    return m, plant, res, links
+
+
 def _geometry(m, links, lines: int, **product) -> dict:
     """The open (no stage) strip's geometry after a constant and an affine, measured and
     predicted, from the links re-solved with ``product`` settings."""
@@ -67,8 +95,10 @@ def _geometry(m, links, lines: int, **product) -> dict:
     mm = dataclasses.replace(m, scenario=parse_scenario(d))
     plan = plan_product(mm)
     rest = restitute(mm, links, np.array([plan.line_t_s[0], plan.line_t_s[-1]]))
-    versions = Versions.of_run(None)
-    true = truth_offsets(mm, plan, versions, 8)["open"]
+    key = (id(m), lines)
+    if key not in _TRUTH:  # the camera model's offsets of these lines, computed once
+        _TRUTH[key] = truth_offsets(mm, plan, Versions.of_run(None), 8)["open"]
+    true = _TRUTH[key]
     est = offsets_from(plan, rest.record, None)
     t = plan.line_t_s + 0.5 * plan.integration_s
     g = geometry_rms(est - true, t)
@@ -78,6 +108,8 @@ def _geometry(m, links, lines: int, **product) -> dict:
             "constant_px": g["constant"].tolist(), "affine_px": g["affine"].tolist(),
             "absolute_px": np.sqrt(np.mean((est - true) ** 2, axis=0)).tolist(),
             "predicted_constant_px": p["constant_px"], "predicted_affine_px": p["affine_px"],
+            "predicted_constant_5_95_px": p["constant_5_95_px"],
+            "predicted_affine_5_95_px": p["affine_5_95_px"],
             "perfect_record_px": geometry_rms(perf - true, t)["constant"].tolist()}
 
 
@@ -101,25 +133,105 @@ def budget(m, res, plant) -> dict:
                                                     np.nan)[1:], axis=(0, 1)).tolist()}
 
 
+def orthoimage_figure(run: Path, points: int = 16) -> dict:
+    """no_stage.yaml with ground control from a reference orthoimage (4x the GSD, chips of
+    32 reference px at ``points`` places), on a rendered run's record and product renders
+    (``imc run scenarios/no_stage.yaml --save-frames --out RUN``: its tracks, frames and
+    product chunks, nothing rendered again): the run's product path
+    (:func:`imc.wiring.product.run_study`) with ``product.ground_control.kind:
+    orthoimage``; metrics.json's product geometry and the fixes' own figures."""
+    from imc.outputs.product_files import product_metrics
+    from imc.wiring.product import run_study
+
+    d = yaml.safe_load((ROOT / "scenarios" / "no_stage.yaml").read_text())
+    d.pop("expect", None)
+    d["product"]["ground_control"] = {"kind": "orthoimage", "points": points}
+    m, plant, res, links = _from_run(d, run)
+    plan = plan_product(m)
+    rest = restitute(m, links, np.array([plan.line_t_s[0], plan.line_t_s[-1]
+                                         + plan.integration_s]))
+    store = next((run / "product" / "chunks").iterdir())  # the run's renders
+    ds, _ = run_study(m, res, plan, m.scenario.product.samples, store, rest)
+    prod = product_metrics(ds)
+    return {"ground_control": ds.attrs.get("ground_control"),
+            "geometry": prod["geometry"], "record": prod["record"]}
+
+
+def correlator_efficiency(pairs: int = 150, seed: int = 32) -> dict:
+    """The correlator's actual error against its own predicted error (the CRLB it reports,
+    what the analytic plant draws its noise at) on textures other than the bundled scenes:
+    1/f^beta fields (beta 2, 2.5, 3; contrast 0.15) and the strong / medium synthetic
+    textures, 64-px blocks as no_stage.yaml's tracker, shifts within +-2 px, SNR 30 and 100:
+    RMS error / RMS CRLB per axis over the valid pairs within 0.5 px."""
+    from correlator.core import measure_shift
+    from correlator.testimages import image_pairs, powerlaw_images, texture_pairs
+
+    rng = np.random.default_rng(seed)
+    out = {}
+    cases = [(f"powerlaw {beta}", beta) for beta in (2.0, 2.5, 3.0)] + [
+        ("strong", None), ("medium", None)]
+    for name, beta in cases:
+        imgs = powerlaw_images(6, 256, beta, rng) if beta is not None else None
+        for snr in (30.0, 100.0):
+            if imgs is not None:
+                ref, cur, d = image_pairs(imgs, pairs, 64, rng, snr=snr, contrast=0.15,
+                                          max_shift_px=2.0)
+            else:
+                ref, cur, d = texture_pairs(pairs, 64, rng, snr=snr, texture=name,
+                                            max_shift_px=2.0)
+            r = measure_shift(ref, cur)
+            err = r.shift - d
+            ok = r.valid & (np.abs(err).max(axis=1) < 0.5)
+            out[f"{name}, SNR {snr:g}"] = {
+                "efficiency": (np.sqrt(np.mean(err[ok] ** 2, axis=0))
+                               / np.sqrt(np.mean(r.crlb[ok] ** 2, axis=0))).tolist(),
+                "crlb_px": float(np.sqrt(np.mean(r.crlb[ok] ** 2))),
+                "valid": float(ok.mean())}
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="the analytic plant only")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "out"))
+    ap.add_argument("--run", type=Path, default=None, help="the rendered record of `imc run "
+                    "scenarios/no_stage.yaml --save-frames --out RUN` instead of a new loop")
+    ap.add_argument("--fidelity", choices=("rendered", "analytic"), default=None,
+                    help="one plant only")
+    ap.add_argument("--efficiency", action="store_true", help="only the correlator's "
+                    "efficiency on synthetic textures")
+    ap.add_argument("--orthoimage", action="store_true", help="only the reference "
+                    "orthoimage's ground control on --run's record and product renders")
     a = ap.parse_args()
     out: dict = {}
-    fids = ("analytic",) if a.quick else ("rendered", "analytic")
+    if a.orthoimage:
+        out["orthoimage"] = orthoimage_figure(a.run)
+        print(json.dumps(out, indent=1, default=str), flush=True)
+        Path(a.out).mkdir(parents=True, exist_ok=True)
+        write_json(Path(a.out) / "restitution_orthoimage.json", out)
+        return
+    if a.efficiency:
+        out["efficiency"] = correlator_efficiency()
+        print(json.dumps(out, indent=1), flush=True)
+        Path(a.out).mkdir(parents=True, exist_ok=True)
+        write_json(Path(a.out) / "restitution_efficiency.json", out)
+        return
+    fids = ("analytic",) if a.quick else (a.fidelity,) if a.fidelity else ("rendered",
+                                                                             "analytic")
     for fid in fids:
         t0 = time.perf_counter()
         d = _scenario()
         d["plant"] = {"fidelity": fid}
-        m, plant, res, links = _run(d)
+        m, plant, res, links = (_from_run(d, a.run) if fid == "rendered" and a.run
+                                else _run(d))
         r = {"loop_s": time.perf_counter() - t0,
              "efficiency": links.efficiency.tolist(), "links": int(links.valid.sum())}
         if fid == "rendered":
             r["budget"] = budget(m, res, plant)
         r["baselines"] = [_geometry(m, links, 12800, restitution={"baselines": k,
                                                                   "smoother": sm})
-                          for k in (1, 2, 3, 4) for sm in (False, True)]
+                          for k, sm in ((1, False), (1, True), (2, True), (3, True),
+                                        (4, True))]
         r["aided"] = [_geometry(m, links, 12800, **extra) for extra in (
             {"gyro": {}}, {"ground_control": {"points": 4, "sigma_px": 0.02}},
             {"gyro": {}, "ground_control": {"points": 4, "sigma_px": 0.02}})]
@@ -127,7 +239,7 @@ def main() -> None:
         out[fid] = r
         print(json.dumps({fid: r}, indent=1), flush=True)
     Path(a.out).mkdir(parents=True, exist_ok=True)
-    write_json(Path(a.out) / "restitution.json", out)
+    write_json(Path(a.out) / f"restitution{'_' + a.fidelity if a.fidelity else ''}.json", out)
 
 
 if __name__ == "__main__":

@@ -13,7 +13,13 @@ is ``sigma (sqrt(1 - 2 rho) e + sqrt(rho) (nu_b - nu_a))`` with ``nu_k`` frame k
 (``default_rng([*seed, k, 1])``) and ``rho`` :data:`SHARED_FRACTION`, so its variance stays
 ``sigma^2`` and consecutive links correlate by ``-rho``. :meth:`AnalyticPlant.pair_links`
 gives the links of every baseline 1..K the ground's network uses (the loop's own noise for
-baseline 1).
+baseline 1), each longer baseline with the blocks its pair keeps on the sensor. Where the
+pairs' block regions are known (``pair_regions``, as the image plants' loop and ground cut
+them), a chained link's noise is instead each frame's noise field over the blocks it is
+measured on, half the variance from each frame: links that use the same pixels of a frame
+share that frame's part in proportion to their overlap (measured on no_stage.yaml's rendered
+frames: the ground's pairs from one reference region correlate by 0.4-0.53, pairs on other
+regions of the same frames by 0.0-0.16).
 """
 
 from __future__ import annotations
@@ -26,6 +32,8 @@ from compensation.blocks import BlockMeasurements
 
 MotionFn = Callable[[np.ndarray], np.ndarray]
 
+#: cells across a block of a frame's noise field (a chain with known pair regions)
+REGION_CELLS = 8
 #: the share of a chained link's noise variance that each of its two frames carries (the
 #: lag-1 correlation of consecutive links, negated): measured -0.08 / -0.12 (row / col) on
 #: the rendered no_stage.yaml tracker's 331 links
@@ -43,7 +51,12 @@ class AnalyticPlant:
         actually added, as a fraction of sigma_px (0: noiseless measurements that still report
         sigma_px, for sine sweeps). nominal_px, field_nominal_px : the orbit/attitude
         prediction of the blocks' motion (t -> (N, B, 2)) and of the field point's (t ->
-        (N, 2)), reported with each measurement; None: nothing is predicted.
+        (N, 2)), reported with each measurement; None: nothing is predicted. pair_regions :
+        (a, b) -> (reference corners (B, 2), current corners (B, 2), used (B,)) of the blocks
+        a pair of frames a < b is measured on (the loop's cut, and the ground's longer
+        baselines kept on the sensor); with ``frame_shape`` (rows, cols) and ``block_px`` a
+        chain's noise is then the frames' noise over those regions (below); None: the
+        shared-fraction model and every block.
     """
 
     def __init__(self, motion_px: MotionFn, centers_px: np.ndarray, sigma_px,
@@ -53,12 +66,21 @@ class AnalyticPlant:
                  field_nominal_px: MotionFn | None = None, chain: bool = False,
                  shared_fraction: float = SHARED_FRACTION,
                  predict_between: Callable[[int, int], tuple[np.ndarray, np.ndarray]]
-                 | None = None):
+                 | None = None,
+                 pair_regions: Callable[[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]]
+                 | None = None, frame_shape: tuple[int, int] | None = None,
+                 block_px: int | None = None):
         if not 0.0 <= shared_fraction <= 0.5:
             raise ValueError(f"shared_fraction must be in [0, 0.5], got {shared_fraction}")
         self.chain = bool(chain)
         self.shared_fraction = float(shared_fraction)
         self.predict_between = predict_between
+        self.pair_regions = pair_regions
+        if pair_regions is not None and (frame_shape is None or block_px is None):
+            raise ValueError("pair_regions needs frame_shape and block_px")
+        self.frame_shape = frame_shape
+        self.cell_px = max(1, int(block_px) // REGION_CELLS) if block_px else 1
+        self.block_px = block_px
         self.centers_px = np.atleast_2d(np.asarray(centers_px, dtype=np.float64))
         self.n_blocks = len(self.centers_px)
         self.sigma_px = np.broadcast_to(np.asarray(sigma_px, dtype=np.float64),
@@ -115,10 +137,37 @@ class AnalyticPlant:
         """nu_k (B, 2): frame k's own noise draw (shared by its links in a chain)."""
         return np.random.default_rng([*self.seed, k, 1]).standard_normal((self.n_blocks, 2))
 
+    def _field(self, k: int) -> np.ndarray:
+        """Frame k's noise field (2, rows / cell, cols / cell): unit normals per cell."""
+        n = -(-np.asarray(self.frame_shape) // self.cell_px)
+        return np.random.default_rng([*self.seed, k, 3]).standard_normal((2, *n))
+
+    def _region(self, field: np.ndarray, corners: np.ndarray) -> np.ndarray:
+        """Unit-variance noise (B, 2) of blocks at ``corners`` (B, 2): the mean of the field's
+        cells they cover, times the square root of their count."""
+        c = self.cell_px
+        w = max(1, self.block_px // c)
+        out = np.empty((len(corners), 2))
+        for i, (r0, c0) in enumerate(np.clip(np.rint(np.asarray(corners) / c).astype(int), 0,
+                                             np.array(field.shape[1:]) - w)):
+            out[i] = field[:, r0:r0 + w, c0:c0 + w].sum(axis=(1, 2)) / w
+        return out
+
+    def _region_noise(self, r: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """A pair's unit noise (B, 2) from frames r < k measured on their regions: half the
+        variance the reference frame's noise over the reference blocks, half the current
+        frame's over the current ones (pairs that share a frame's pixels share that part,
+        in proportion to the overlap), and the blocks used (B,)."""
+        ref, cur, used = self.pair_regions(r, k)
+        e = (self._region(self._field(k), cur) - self._region(self._field(r), ref)) / np.sqrt(2)
+        return e, np.asarray(used, dtype=bool)
+
     def _noise(self, k: int, r: int, j: int | None = None) -> np.ndarray:
         """A link's unit noise (B, 2) from frame r to k: the loop's own (``j`` None) or the
         ground's extra baseline j's independent draw, with the shared frame terms in a
-        chain."""
+        chain (:meth:`_region_noise` where the pairs' regions are known)."""
+        if self.chain and r != k and self.pair_regions is not None:
+            return self._region_noise(r, k)[0]
         key = [*self.seed, k] if j is None else [*self.seed, k, j, 2]
         e = np.random.default_rng(key).standard_normal((self.n_blocks, 2))
         if not self.chain or r == k:
@@ -141,7 +190,12 @@ class AnalyticPlant:
             if pairs else np.zeros((0, self.n_blocks, 2))
         d = jit[b] - jit[a] + noise * (self.sigma_px * self.noise_scale)
         sigma = np.broadcast_to(np.maximum(self.sigma_px, 1e-12), d.shape).copy()
-        return a, b, d, sigma, np.ones(d.shape[:2], bool)
+        valid = np.ones(d.shape[:2], bool)
+        if self.pair_regions is not None:  # the blocks a longer baseline keeps on the sensor
+            for i, (aa, bb, j) in enumerate(pairs):
+                if j > 1:
+                    valid[i] = np.asarray(self.pair_regions(aa, bb)[2], dtype=bool)
+        return a, b, d, sigma, valid
 
     def rereference(self, k: int) -> None:
         self.ref = k

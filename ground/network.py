@@ -649,7 +649,9 @@ def smooth_network(links: Links, n_frames: int, *, order: int = 2, prior: Prior 
     return _solve(links, n_frames, gauge=gauge, gyro=gyro, absolute=absolute, prior=prior)
 
 
-def _basis(t: np.ndarray, terms: str) -> np.ndarray:
+def trend_basis(t: np.ndarray, terms: str) -> np.ndarray:
+    """Orthonormal columns (n, 1 or 2) spanning a constant (``terms`` "constant") or a
+    constant and a linear trend in t (n,) ("affine"): the terms a geometry figure removes."""
     x = (t - t.mean()) / max(float(np.ptp(t)), 1e-300)
     cols = [np.ones_like(x)] if terms == "constant" else [np.ones_like(x), x]
     q, _ = np.linalg.qr(np.stack(cols, axis=1))
@@ -698,7 +700,7 @@ def geometry_rms(error_px: ArrayLike, t_s: ArrayLike | None = None,
             raise ValueError(f"cov_px2 must have shape (2, {n}, {n}) or ({n}, {n}), got "
                              f"{np.shape(cov_px2)}")
     for key in ("constant", "affine"):
-        q = _basis(t, key)
+        q = trend_basis(t, key)
         r = e - q @ (q.T @ e)
         out[key] = np.sqrt(np.mean(r**2, axis=0))
         if c is not None:

@@ -195,6 +195,9 @@ def _product(m: Models, res, truth, plant, plan, out: Path, fresh: bool, metrics
     ds.attrs["restitution"] = {"baselines": rest.baselines, "links": rest.links_used,
                                "aiding": list(rest.aiding),
                                "efficiency": [float(x) for x in links.efficiency]}
+    if "ground_control" in ds.attrs:  # a reference orthoimage's fixes, measured on the product
+        ds.attrs["restitution"]["aiding"].append("orthoimage")
+        ds.attrs["restitution"]["ground_control"] = ds.attrs.pop("ground_control")
     written = write_product(ds, out / "product")
     metrics["product"] = product_metrics(ds, written + [out / "product" / "links.npz"])
     files.extend(written)

@@ -862,12 +862,25 @@ class GyroConfig(_Model):
 
 
 class GroundControlConfig(_Model):
-    """Ground control points on the strip (product.ground_control): the line of sight's
-    absolute position at ``points`` instants spread evenly over the product, each to
-    ``sigma_px``, fused with the record on the ground."""
+    """Ground control on the strip (product.ground_control), fused with the record on the
+    ground: ``kind`` 'points', the line of sight's absolute position at ``points`` instants
+    spread evenly over the product, each to ``sigma_px``; or 'orthoimage', a reference
+    orthoimage of the scene at ``gsd_factor`` times the product's GSD (its own noise) correlated
+    against the corrected product in chips of ``chip_px`` reference pixels at ``points`` places
+    along the strip, each fix's accuracy predicted from its correlation."""
 
-    points: int = Field(4, ge=1, le=10000, description="control points along the strip")
-    sigma_px: float = Field(0.02, gt=0.0, description="each point's accuracy, px (1 sigma)")
+    kind: Literal["points", "orthoimage"] = Field(
+        "points", description="'points': control points of a stated accuracy; 'orthoimage': a "
+        "coarser reference orthoimage correlated against the corrected product (needs "
+        "product.render true)")
+    points: int = Field(4, ge=1, le=10000, description="control points (orthoimage: chip rows) "
+                        "along the strip")
+    sigma_px: float = Field(0.02, gt=0.0, description="points: each point's accuracy, px "
+                            "(1 sigma)")
+    gsd_factor: int = Field(4, ge=2, le=16, description="orthoimage: the reference's GSD as a "
+                            "multiple of the product's")
+    chip_px: int = Field(32, ge=16, le=256, description="orthoimage: a correlation chip's side, "
+                         "reference pixels")
 
 
 class RestitutionConfig(_Model):
@@ -911,6 +924,14 @@ class ProductConfig(_Model):
                                     "(null: none)")
     ground_control: GroundControlConfig | None = Field(
         None, description="ground control points fused with the record (null: none)")
+
+    @model_validator(mode="after")
+    def _orthoimage_needs_images(self) -> ProductConfig:
+        gc = self.ground_control
+        if gc is not None and gc.kind == "orthoimage" and not self.render:
+            raise ValueError("ground_control.kind 'orthoimage' correlates the rendered product: "
+                             "set product.render true or use kind 'points'")
+        return self
 
 
 class MetricsConfig(_Model):

@@ -89,7 +89,10 @@ def test_stage_and_ground_is_never_worse_than_the_stage_and_better_above_its_ban
     g = noisy["geometry"]["closed"]
     stage_only, both = np.array(g["before"]["rms_px"]), np.array(g["after"]["rms_px"])
     open_after = np.array(noisy["geometry"]["open"]["after"]["rms_px"])
-    assert open_after[1] > stage_only[1]  # the record applied whole would hurt across track
+    # the record errs across track as much as the stage leaves (the noise drives both: the
+    # region noise model of the chain gives 0.18 against 0.18 px), so applied whole it
+    # would not help
+    assert open_after[1] > 0.9 * stage_only[1]
     assert np.all(both <= 1.1 * stage_only)
     # a 45 Hz roll line above a slow stage's band (an integrator at 5 Hz): the record
     # resolves it (200 Hz) and the ground removes what the stage leaves
@@ -115,3 +118,56 @@ def test_the_record_is_the_networks_and_predicts_its_error(tmp_path):
                                                                   "sigma_px": 0.002}})
     absolute = np.array(cp["geometry"]["open"]["control_points"]["rms_px"])
     assert np.all(absolute < 0.02)
+
+
+def test_the_grounds_pairs_stay_inside_the_sensors_margin():
+    # a 256-row tracker, 64-px blocks at rows 32 and 160, content moving 83 px (2 frames),
+    # 166 px (4 frames): each pair's reference and current block stay 8 px inside the
+    # sensor (its edges carry the optics' periodic wrap), the loop's cut where it fits, and
+    # a block whose reference would repeat another's content is not used
+    from imc.wiring.links import OVERLAP_MARGIN_PX, pair_corners
+
+    corners = np.array([[32, 16], [32, 144], [160, 16], [160, 144]])
+    lim = np.array([256 - 64, 256 - 64])
+    for rows, kept in ((20, 4), (83, 4), (166, 2)):
+        step = np.tile([rows, 0.4], (4, 1))
+        out, used = pair_corners(corners, step, 64, lim)
+        assert used.sum() == kept
+        for c in (out[used], out[used] + np.rint(step[used]).astype(int)):
+            assert c.min() >= OVERLAP_MARGIN_PX and np.all(c <= lim - OVERLAP_MARGIN_PX)
+        if rows == 20:  # it fits: the loop's chain cut, half the motion before the block
+            assert np.array_equal(out, corners - [10, 0])
+    _, used = pair_corners(corners, np.tile([250.0, 0.0], (4, 1)), 64, lim)
+    assert not used.any()  # the content leaves the sensor: no block
+
+
+def test_chain_links_share_the_frames_noise_over_the_pixels_they_share():
+    # a frame's noise field over the blocks each pair is measured on: pairs from one
+    # reference region share half their variance (the rendered no_stage.yaml's ground pairs:
+    # 0.40-0.53), consecutive loop links the overlap of a block moved by 41.5 px (rendered
+    # -0.08 / -0.12), every link keeps its variance
+    from compensation.analytic_plant import AnalyticPlant
+    from imc.wiring.links import pair_corners
+
+    corners = np.array([[32, 32], [32, 160], [160, 32], [160, 160]])
+    step = np.array([41.5, 0.0])
+
+    def regions(a, b):
+        st = np.tile(step * (b - a), (4, 1))
+        ref, used = pair_corners(corners, st, 64, np.array([192, 192]))
+        return ref, ref + np.rint(st).astype(int), used
+
+    plant = AnalyticPlant(lambda tt: np.zeros((len(tt), 4, 2)), corners + 31.5, 0.01,
+                          np.arange(2001) / 200.0, 1e-4, seed=(5,), chain=True,
+                          pair_regions=regions, frame_shape=(256, 256), block_px=64)
+    a, b, d, _, valid = plant.pair_links(4)
+    j = b - a
+    for k in range(1, 5):
+        assert np.std(d[j == k][valid[j == k]]) == pytest.approx(0.01, rel=0.05)
+    by = {(int(x), int(y)): d[i, 0] for i, (x, y) in enumerate(zip(a, j, strict=True))}
+    x = np.array([(by[(r, 2)], by[(r, 3)]) for r in range(1900)])
+    same_ref = [np.corrcoef(x[:, 0, ax], x[:, 1, ax])[0, 1] for ax in range(2)]
+    np.testing.assert_allclose(same_ref, 0.5, atol=0.08)
+    loop = d[j == 1].mean(axis=1)
+    lag1 = [np.corrcoef(loop[:-1, ax], loop[1:, ax])[0, 1] for ax in range(2)]
+    assert all(-0.2 < c < -0.05 for c in lag1)

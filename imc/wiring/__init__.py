@@ -5,7 +5,8 @@ run is told before it starts (:mod:`.advisories`), the rendered tracker plant
 (:mod:`.blur`), its rendered study, product and ground processing (:mod:`.product`), the
 product as a Level-1 product (RPCs, orthorectification, geolocation in metres:
 :mod:`.level1`), the record's links (:mod:`.links`) and the ground's restitution of it
-(:mod:`.restitution`), named random streams (:mod:`.streams`), checkpoints
-(:mod:`.checkpoint`) and the device emulator's run (:mod:`.emulator`). Computes results and
-returns them labelled; the files, figures and report are written by imc.outputs; imports
-nothing from outputs, workflow or studies."""
+(:mod:`.restitution`), ground control from a reference orthoimage (:mod:`.orthocontrol`),
+named random streams (:mod:`.streams`), checkpoints (:mod:`.checkpoint`) and the device
+emulator's run (:mod:`.emulator`). Computes results and returns them labelled; the files,
+figures and report are written by imc.outputs; imports nothing from outputs, workflow or
+studies."""

@@ -84,7 +84,7 @@ def overlap_baselines(m: Models) -> int:
     return int(max(1, min(np.floor(per.min()), len(m.frame_t_s) - 1)))
 
 
-def _combine(d: np.ndarray, sigma: np.ndarray, valid: np.ndarray
+def combine_blocks(d: np.ndarray, sigma: np.ndarray, valid: np.ndarray
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Blocks (n, B, 2) -> links: inverse-variance mean, its sigma (CRLB), the blocks used
     and the chi-square of the blocks about the mean per axis (n, 2)."""
@@ -110,10 +110,38 @@ def _loop_blocks(m: Models, rec, stage_mean: np.ndarray):
     return a[keep], ks[keep], d[keep], rec.sigma_px[ks][keep], valid[keep]
 
 
+def pair_corners(corners: np.ndarray, step_px: np.ndarray, block_px: int, lim: np.ndarray,
+                 margin: int = OVERLAP_MARGIN_PX) -> tuple[np.ndarray, np.ndarray]:
+    """Reference corners (B, 2) of a pair whose content moves by ``step_px`` (B, 2) px: the
+    loop's chain cut (half the motion before the block's place, half after) moved, where it
+    would not fit, just far enough that the reference block and the current one both stay
+    ``margin`` px inside the sensor (``lim`` (2,): rows, cols less a block), and whether each
+    block is used (B,): one that cannot fit, or whose reference overlaps an earlier one's by
+    more than half a block on both axes (the same content twice: not an independent block),
+    is not.
+
+    The frames' edges are not the scene: the optics' MTF is applied to each rendered frame
+    with periodic boundaries, so its first and last rows and columns carry the opposite edge's
+    content. Clipped to the edge, the ground's baselines of 2-4 frames measured on no_stage.yaml
+    erred by -0.0018 px (row) a link against -0.0005 px for the loop's cut 11 px inside: a
+    per-link bias the network turned into the record's along-track drift."""
+    step = np.rint(np.asarray(step_px, dtype=np.float64)).astype(int)
+    want = np.asarray(corners, dtype=int) - np.rint(step / 2.0).astype(int)
+    lo = np.maximum(margin, margin - step)
+    hi = np.minimum(lim - margin, lim - margin - step)
+    out = np.clip(want, lo, np.maximum(lo, hi))
+    used = np.all(hi >= lo, axis=1)
+    for i in range(1, len(out)):
+        near = np.all(np.abs(out[:i] - out[i]) < block_px // 2, axis=1) & used[:i]
+        used[i] &= not near.any()
+    return out, used
+
+
 def _extra_blocks(m: Models, frames: np.ndarray, stage_mean: np.ndarray, k_max: int,
                   first: int = 2, warp: bool = True):
     """Links of baselines ``first``..k_max per block, measured on the stored frames with the
-    loop's chain's block cut (at half the predicted motion); ``warp``: the current block
+    loop's chain's block cut (at half the predicted motion) kept inside the sensor's margin
+    (:func:`pair_corners`); ``warp``: the current block
     resampled (cubic spline) at the predicted motion, so the correlator measures only the
     jitter's increment about zero, where its sub-pixel estimate has no bias (a chain's links
     all share one fractional predicted shift: the estimator's bias there adds up to a
@@ -126,8 +154,8 @@ def _extra_blocks(m: Models, frames: np.ndarray, stage_mean: np.ndarray, k_max: 
     for k in range(first, len(m.frame_t_s)):
         for j in range(first, min(k_max, k) + 1):
             a = k - j
-            half = np.rint(predicted_px(m, grid, a, k, stage_mean[a], stage_mean[k]) / 2.0)
-            corners = np.clip(m.corners - half.astype(int), 0, lim)
+            step = predicted_px(m, grid, a, k, stage_mean[a], stage_mean[k])
+            corners, inside = pair_corners(m.corners, step, b, lim)
             centers = BlockTracker.centers_from(corners, b)
             pred = predicted_px(m, centers, a, k, stage_mean[a], stage_mean[k])
             tracker = BlockTracker(frames[a], corners, b, m.correlator)
@@ -139,7 +167,7 @@ def _extra_blocks(m: Models, frames: np.ndarray, stage_mean: np.ndarray, k_max: 
             out_b.append(k)
             out_d.append(res.shift - pred)
             out_s.append(np.where(res.valid[:, None], res.crlb, np.inf))
-            out_v.append(res.valid & np.all(np.isfinite(res.shift), axis=1))
+            out_v.append(res.valid & inside & np.all(np.isfinite(res.shift), axis=1))
     if not out_a:
         nb = len(m.corners)
         return (np.zeros(0, int), np.zeros(0, int), np.zeros((0, nb, 2)),
@@ -181,7 +209,7 @@ def measure_links(m: Models, rec, plant, stage_mean: np.ndarray,
             loop_flag.append(np.zeros(len(parts[1][0]), bool))
     loop = np.concatenate(loop_flag)
     a, b, d, s, v = (np.concatenate(x) for x in zip(*parts, strict=True))
-    mean, sig, nblk, chi2 = _combine(d, s, v)
+    mean, sig, nblk, chi2 = combine_blocks(d, s, v)
     ok = nblk >= 2
     dof = np.maximum(nblk - 1, 0)
     # the record's consistency: the blocks' scatter against their bounds, pooled (>= 1)

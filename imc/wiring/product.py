@@ -782,12 +782,19 @@ def run_study(m: Models, res, plan: ProductPlan, samples: int, store: Path,
     versions = Versions.of_run(stage)
     rendered = render_versions(m, plan, versions, samples, store)
     exposed = expose_versions(m, plan, rendered)
+    gc = m.scenario.product.ground_control
+    if restitution is not None and gc is not None and gc.kind == "orthoimage":
+        from imc.wiring.orthocontrol import orthoimage_control
+
+        restitution = orthoimage_control(m, plan, rendered, exposed, restitution)
     record = restitution.record if restitution is not None else record_jitter(m, res)
     ground = ground_versions(m, rendered, exposed, versions, record,
                              perfect_jitter(m, record), stage, restitution)
     t0 = time.perf_counter()
     quality = measure_quality(m, ground)
     ds = product_dataset(rendered, ground, quality, samples)
+    if restitution is not None and restitution.control:
+        ds.attrs["ground_control"] = restitution.control
     ds.attrs["quality_s"] = time.perf_counter() - t0
     ds.attrs["transform"], ds.attrs["crs"] = georeference(m, plan)
     if plan.imager.scanning:  # step 6: the Level-1 product (RPCs, ortho, geolocation)

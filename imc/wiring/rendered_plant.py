@@ -19,6 +19,7 @@ from compensation.blocks import BlockMeasurements
 from correlator.tracker import BlockTracker, extract_blocks
 from imc.wiring import streams
 from imc.wiring.build import Models, frame_seeds, predicted_px
+from imc.wiring.links import pair_corners
 
 #: a block's predicted deformation (px across it) beyond which the tracker resamples the
 #: current frame through it (long stares), instead of cutting a plain block
@@ -358,11 +359,23 @@ def analytic_plant(m: Models, sigma_px) -> AnalyticPlant:
         mo = predicted_px(m, pts, r, k, zero, zero)
         return mo[:-1], mo[-1]
 
+    bp = m.scenario.correlator.block_px
+    fp = m.camera.focal_plane
+
+    def pair_regions(a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The blocks of the pair (a, b) as the image plants cut them inside the sensor's
+        margin: reference corners, current corners, used."""
+        step = predicted_px(m, centers, a, b, zero, zero)
+        ref, used = pair_corners(m.corners, step, bp, np.array([fp.rows - bp, fp.cols - bp]))
+        return ref, ref + np.rint(step).astype(int), used
+
     return AnalyticPlant(motion, centers, sigma_px, m.frame_t_s, m.exposure_s,
                          seed=tuple(streams.key(m.scenario.seed, "analytic")),
                          samples=m.scenario.metrics.samples_per_frame, nominal_px=nominal,
                          field_nominal_px=field_nominal, chain=m.chain,
-                         predict_between=between if m.chain else None)
+                         predict_between=between if m.chain else None,
+                         pair_regions=pair_regions if m.chain else None,
+                         frame_shape=(fp.rows, fp.cols), block_px=bp)
 
 
 def build_plant(m: Models):

@@ -14,11 +14,11 @@ jitter spectrum.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from ground.aiding import GyroModel, gyro_aiding, simulate_absolute, simulate_gyro
+from ground.aiding import Absolute, GyroModel, gyro_aiding, simulate_absolute, simulate_gyro
 from ground.network import NetworkSolution, smooth_network, solve_network
 from ground.record import MotionRecord
 from imc.wiring import streams
@@ -28,13 +28,18 @@ from imc.wiring.truth import jitter_px
 
 #: truth samples per tracker frame for the simulated gyro and control points
 TRUTH_PER_FRAME = 8
+#: draws and seed of the predicted geometry's spread (one strip's RMS under the covariance)
+SPREAD_DRAWS = 1000
+SPREAD_SEED = 32
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays
 class Restitution:
     """The ground's record: ``record`` (the jitter at each tracker frame's mid-time, px, with
     its predicted error as ``sigma_px``), the network ``solution`` (covariance), the
-    ``baselines`` used, the links used, and what aided it."""
+    ``baselines`` used, the links used, what aided it, the run's ``links`` (for a re-solve
+    with fixes measured later: :func:`restitute`'s ``absolute``) and the ground control's
+    own figures ``control`` (a reference orthoimage's fixes)."""
 
     record: MotionRecord
     solution: NetworkSolution
@@ -42,6 +47,8 @@ class Restitution:
     links_used: int
     aiding: tuple[str, ...]
     absolute: bool
+    links: LinkTable | None = None
+    control: dict = field(default_factory=dict)
 
     def predicted_px(self, t_s: np.ndarray) -> np.ndarray:
         """The record's predicted error (q, 2) px at times t_s (q,) s."""
@@ -87,7 +94,31 @@ class Restitution:
         absolute = np.sqrt(np.einsum("aqq->a", cov) / len(t))
         return {"constant_px": [float(x) for x in g["predicted_constant"]],
                 "affine_px": [float(x) for x in g["predicted_affine"]],
-                "absolute_px": [float(x) for x in absolute]}
+                "absolute_px": [float(x) for x in absolute],
+                **self._spread(t, cov)}
+
+    @staticmethod
+    def _spread(t: np.ndarray, cov: np.ndarray, draws: int = SPREAD_DRAWS) -> dict:
+        """The 5th and 95th percentiles (2,) px of one strip's RMS after a constant and after
+        an affine when its error is drawn from the predicted covariance ``cov`` (2, q, q) at
+        times t (q,): how far one realisation's figure may fall from the RMS prediction.
+        Drawn from a fixed seed (a property of the covariance, not of the run)."""
+        from ground.network import trend_basis
+
+        rng = np.random.default_rng(SPREAD_SEED)
+        out: dict[str, list] = {}
+        for key in ("constant", "affine"):
+            q = trend_basis(t, key)
+            lo, hi = [], []
+            for c in cov:
+                w, v = np.linalg.eigh(0.5 * (c + c.T))
+                x = (v * np.sqrt(np.clip(w, 0.0, None))) @ rng.standard_normal((len(t), draws))
+                r = x - q @ (q.T @ x)
+                rms = np.sqrt(np.mean(r ** 2, axis=0))
+                lo.append(float(np.percentile(rms, 5)))
+                hi.append(float(np.percentile(rms, 95)))
+            out[f"{key}_5_95_px"] = [lo, hi]
+        return out
 
 
 def _truth_series(m: Models) -> tuple[np.ndarray, np.ndarray]:
@@ -97,8 +128,8 @@ def _truth_series(m: Models) -> tuple[np.ndarray, np.ndarray]:
     return t, jitter_px(m, t)
 
 
-def restitute(m: Models, links: LinkTable, control_t_s: np.ndarray | None = None
-              ) -> Restitution:
+def restitute(m: Models, links: LinkTable, control_t_s: np.ndarray | None = None,
+              absolute: Absolute | None = None) -> Restitution:
     """The ground's best record from the run's links and the configured aiding.
 
     Parameters
@@ -107,6 +138,8 @@ def restitute(m: Models, links: LinkTable, control_t_s: np.ndarray | None = None
         ``product.ground_control``).
     links : every link of the run.
     control_t_s : (2,) the span the control points are spread over, s (default: the run's).
+    absolute : absolute fixes measured on the product (a reference orthoimage's,
+        :mod:`imc.wiring.orthocontrol`), fused in place of simulated control points.
 
     Returns
     -------
@@ -116,10 +149,12 @@ def restitute(m: Models, links: LinkTable, control_t_s: np.ndarray | None = None
     t = m.frame_mid_s
     k_max = p.restitution.baselines or overlap_baselines(m)
     net = links.network(t, k_max)
-    gyro = absolute = None
-    aiding: list[str] = []
+    gyro = None
+    aiding: list[str] = [] if absolute is None else ["orthoimage"]
     ifov = m.main_camera.focal_plane.ifov_rad
-    if p.gyro is not None or p.ground_control is not None:
+    points = p.ground_control is not None and p.ground_control.kind == "points" \
+        and absolute is None
+    if p.gyro is not None or points:
         tt, truth = _truth_series(m)
     if p.gyro is not None:
         g = GyroModel(p.gyro.arw_deg_rt_h, p.gyro.bias_instability_deg_h, p.gyro.rate_hz,
@@ -127,7 +162,7 @@ def restitute(m: Models, links: LinkTable, control_t_s: np.ndarray | None = None
         readings = simulate_gyro(g, tt, truth, ifov, streams.rng(m.scenario.seed, "gyro"))
         gyro = gyro_aiding(g, readings, t, ifov)
         aiding.append("gyro")
-    if p.ground_control is not None:
+    if points:
         lo, hi = (t[0], t[-1]) if control_t_s is None else np.clip(control_t_s, t[0], t[-1])
         n = p.ground_control.points
         at = lo + (np.arange(n) + 0.5) / n * (hi - lo)
@@ -139,4 +174,4 @@ def restitute(m: Models, links: LinkTable, control_t_s: np.ndarray | None = None
     s = sol.s_px if sol.s_px.ndim == 2 else sol.s_px[..., 0]
     record = MotionRecord(t, s, np.ones(len(t), bool), np.maximum(sol.sigma_px, 1e-6))
     return Restitution(record, sol, int(k_max), int(net.valid.sum()), tuple(aiding),
-                       absolute is not None)
+                       absolute is not None, links)

@@ -30,6 +30,7 @@ STREAM_IDS = {
     "links": 15,  # the ground's extra baselines (optical correlator noise), per (frame, j)
     "gyro": 16,  # the ground's gyro readings
     "ground_control": 17,  # the ground control points' errors
+    "reference": 18,  # the reference orthoimage's detector noise (ground control)
 }
 
 

@@ -232,10 +232,15 @@ def test_the_refusal_names_every_supported_path():
 
 
 def test_the_tracker_predictor_scales_the_bound_by_the_plants_calibrated_efficiency():
-    from imc.workflow.predict import CORRELATOR_EFFICIENCY
+    from imc.workflow.design import base_tracker_snr
+    from imc.workflow.predict import correlator_efficiency
 
-    eff = CORRELATOR_EFFICIENCY["texture"]
-    assert eff.factor > 0 and eff.spread > 0 and "calibrate" in eff.source
+    d = parse_design(_design())
+    model = correlator_efficiency("texture", d.base.scene.kind)
+    assert model.spread > 0 and "calibrate" in model.source
+    snr = base_tracker_snr(d)
+    assert snr == pytest.approx(20.0, rel=0.05)  # the quickstart's tracker: 100 DN / 5 DN
+    eff = model.at(snr)
     c_a = evaluate(parse_design(_design()))
     c_t = evaluate(parse_design(_design(verify={"designs": 1, "seeds": 1,
                                                 "fidelity": "texture"})))
@@ -253,8 +258,8 @@ def test_the_tracker_predictor_scales_the_bound_by_the_plants_calibrated_efficie
         det2 = sum(x**2 for x in p.rms_det_px)
         noise_a = c_a.predicted[p_key][i] ** 2 - det2
         noise_t = c_t.predicted[p_key][i] ** 2 - det2
-        assert noise_t / noise_a == pytest.approx(eff.factor**2, rel=1e-6)
-    assert abs(eff.factor**2 - 1.0) > 0.15
+        assert noise_t / noise_a == pytest.approx(eff**2, rel=1e-6)
+    assert abs(eff**2 - 1.0) > 0.15
 
 
 def _esf_from_mtf(x_px: np.ndarray, mtf_fn) -> np.ndarray:

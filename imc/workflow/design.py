@@ -49,9 +49,11 @@ from imc.workflow.predict import (
     correlator_efficiency,
     nominal_line_rate_hz,
     predict_loops,
+    product_span_s,
     record_geometry_unit,
     residual_figures,
     tracker_bound,
+    tracker_snr,
 )
 
 #: the most designs a verification runs (each with its seeds)
@@ -301,6 +303,14 @@ def base_crlb_px(design: Design) -> float:
     return float(np.mean(crlb) / np.sqrt(kept))
 
 
+def base_tracker_snr(design: Design) -> float:
+    """The base's tracker SNR (:func:`imc.workflow.predict.tracker_snr`; the correlator's
+    efficiency depends on it)."""
+    from imc.wiring.build import build_models
+
+    return tracker_snr(build_models(design.base, light=True))
+
+
 def loop_choices(free: FreeConfig) -> list[LoopChoice]:
     """Every distinct loop of the free parameters (stage 'none': one per rate)."""
     out = []
@@ -376,19 +386,29 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
     lock = np.array([p.lock_s for p in preds], float)[li]
     # the tracker: bound x efficiency x (b0 / b) / sqrt(n); radiometric signal: shot noise
     # with exposure
-    eff = correlator_efficiency(cfg.verify.fidelity).factor
+    eff = correlator_efficiency(cfg.verify.fidelity, base.scene.kind).at(
+        base_tracker_snr(design))
     sigma = crlb * eff * (b0 / b) / np.sqrt(nb)
     if radiometric:
         sigma = sigma * np.sqrt(rate / rate0)
     rms, total, mtf, blur = residual_figures(det, var_rnd, gain, sigma, mtf_det, var_rnd_blur,
                                              gain_blur)
-    # the record's geometry after correction (the product's duration: the base run)
-    kmax = base.product.restitution.baselines or 1
+    # the record's geometry after correction over the product's span (a TDI strip's lines)
     staring = base.attitude.mode == "target"
+    if staring:
+        kmax = np.zeros(len(li), int)  # every frame against one reference
+    elif base.product.restitution.baselines:
+        kmax = np.full(len(li), int(base.product.restitution.baselines))
+    else:  # the overlap's baselines (imc.wiring.links.overlap_baselines)
+        from imc.wiring.links import OVERLAP_MARGIN_PX
+
+        room = base.camera.tracker.rows - b - OVERLAP_MARGIN_PX
+        kmax = np.maximum(1, np.floor(room / (nominal_line_rate_hz(base) / rate))).astype(int)
     geo = np.full((len(li), 2), np.nan)
-    for r_hz in np.unique(rate):
-        c_u, a_u = record_geometry_unit(float(r_hz), base.duration_s, 0 if staring else kmax)
-        sel = rate == r_hz
+    span = product_span_s(base)
+    for r_hz, k_b in set(zip(rate.tolist(), kmax.tolist(), strict=True)):
+        c_u, a_u = record_geometry_unit(float(r_hz), span, int(k_b))
+        sel = (rate == r_hz) & (kmax == k_b)
         geo[sel, 0], geo[sel, 1] = c_u, a_u
     corr = ground == "correction"
     values = {
@@ -720,7 +740,8 @@ def sensitivity(c: Candidates, i: int) -> dict[str, list[dict]]:
 def design_json(design: Design, c: Candidates, front: np.ndarray, chosen: int | None,
                 reason: str, verified: list[dict], crlb_px: float) -> dict:
     """The design's record (design.json)."""
-    eff = correlator_efficiency(design.config.verify.fidelity)
+    eff = correlator_efficiency(design.config.verify.fidelity, design.base.scene.kind)
+    snr = base_tracker_snr(design)
     errs = [e for v in verified for e in v["margin_error"].values() if math.isfinite(e)]
     validated = max(errs) if errs else None
     return {
@@ -728,7 +749,8 @@ def design_json(design: Design, c: Candidates, front: np.ndarray, chosen: int | 
         "requirements": {p: b.text() for p, b in design.config.requirements.items()},
         "predictors": {p: SUPPORTED[p] for p in design.config.requirements},
         "tracker_crlb_px": crlb_px,
-        "correlator_efficiency": eff.factor,
+        "tracker_snr": snr,
+        "correlator_efficiency": eff.at(snr),
         "correlator_efficiency_spread": eff.spread,
         "correlator_efficiency_note": f"{design.config.verify.fidelity}: {eff.source}",
         "margin_required": design.config.margin,

@@ -318,3 +318,23 @@ def test_niirs_predictor_matches_giqe5_of_measured_edges():
     assert ni.rer_static() == pytest.approx(r_s, rel=0.03)
     assert rer_m[0] == pytest.approx(r_row, rel=0.03)
     assert rer_m[1] == pytest.approx(r_col, rel=0.03)
+
+
+def test_a_tdi_lines_residual_counts_from_the_lines_start():
+    """The open loop's residual of a sinusoid on a TDI imager, from the time-domain path
+    (each line's residual less its value at the line's start) against the window weight
+    the noise and random terms use (2 (1 - sinc(2 f w)), over random phases), and far below
+    the sinusoid's own RMS (what a frame imager's metric counts)."""
+    from imc.workflow.predict import exposure_windows, predict_model, window_weights
+
+    d = yaml.safe_load((ROOT / "scenarios" / "ikonos_tdi_scan.yaml").read_text())
+    f_hz, amp = 20.0, 0.2
+    d["attitude"]["jitter"] = {"sinusoids": [{"axis": "pitch", "frequency_hz": f_hz,
+                                              "amplitude_px": amp}]}
+    base = parse_scenario(d)
+    _, _, window = exposure_windows(base)
+    p = predict_model(None, base, Disturbance.from_scenario(base), 2e-4, lock=False)
+    w_rms, _ = window_weights(window, tdi=True)
+    expected = amp * np.sqrt(w_rms(np.array([f_hz]))[0] / 2.0)
+    assert p.rms_det_px[0] < 0.5 * amp / np.sqrt(2.0)
+    assert p.rms_det_px[0] == pytest.approx(expected, rel=0.05)

@@ -1,35 +1,40 @@
 """Fast predictions of a candidate design's metrics (milliseconds per candidate), from the
-models imcsim already has; what `imc design` searches with.
+models imcsim already has; what `imc design` searches with, and what
+:func:`predict_scenario` predicts a whole scenario with (its own loop as a run wires it).
 
 - The loop (:class:`compensation.analytic.LoopModel`, built here as
   :func:`imc.wiring.build.build_loop` builds it): the sinusoids' residual is the linear loop
   run from the first frame (:func:`sinusoid_residual`: the commands through the loop's
   transfer, the stage's held-command response summed: acquisition and the ripple between
   commands included, which |S(f)| alone, the fundamental, misses); a random (PSD) term's
-  variance is
-  the integral of PSD |S|^2; the tracker's white error of sigma per frame gives the loop's
-  noise RMS (:meth:`LoopModel.noise_rms_px`, linear in sigma). A Kalman predictor with a
-  stated ``bandwidth_hz`` has a noise-independent gain (its process noise scales with
-  sigma^2), so one loop model serves every block size and count.
-- The tracker: the Cramer-Rao bound of the base scene's texture at the tracker's SNR
-  (:func:`imc.wiring.rendered_plant.predicted_sigma_px`, once per design), scaled by
-  block_px0 / block_px (the bound goes as one over the block's side), divided by
-  sqrt(n_blocks) (the motion-field fit averages the blocks), times the correlator's
-  efficiency (measured error / bound; 1 by construction for the analytic plant, which
-  draws its noise at the bound).
+  variance is the integral of PSD |S|^2; the tracker's white error of sigma per frame goes
+  through the loop's noise density (:meth:`LoopModel.noise_rms_px`'s Parseval, linear in
+  sigma). A TDI line's residual counts from the line's start, as ``imc.wiring.truth``
+  measures it (:func:`window_weights`). A Kalman predictor with a stated ``bandwidth_hz``
+  has a noise-independent gain (its process noise scales with sigma^2), so one loop model
+  serves every block size and count.
+- The tracker: the Cramer-Rao bound of the base scene's texture at the tracker's SNR over
+  the blocks the correlator keeps (:func:`tracker_bound`, once per design; the rendered
+  plant's on a rendered frame 0), scaled by block_px0 / block_px (the bound goes as one
+  over the block's side), divided by sqrt(n_blocks) (the motion-field fit averages the
+  blocks), times the correlator's efficiency (:data:`CORRELATOR_EFFICIENCY`: per plant and
+  scene kind against SNR, calibrated by ``benchmarks/bench_design.py --calibrate``; 1 by
+  construction for the analytic plant, which draws its noise at the bound).
 - Motion MTF at Nyquist per exposure (:func:`compensation.metrics.motion_mtf`): the
   sinusoids' residual over each main-imager exposure from ``start_s`` on, times the
-  Gaussian factor exp(-pi^2 sigma^2 / 2) of the random and noise residual (its whole
-  variance counted within one exposure: conservative).
+  Gaussian factor exp(-pi^2 var / 2) of the random and noise residual's variance about the
+  exposure's mean.
 - Lock time: :func:`compensation.lock.analytic_lock_time` of the same model.
 - Geometry after ground correction by the record: the record's network
-  (:meth:`ground.network.Links.baselines` on a synthetic series of the product's tracker
-  frames, :func:`ground.network.solve_network`) and its covariance through
+  (:meth:`ground.network.Links.baselines` on a synthetic series of the tracker frames
+  within the product's span, with the overlap's baselines,
+  :func:`ground.network.solve_network`) and its covariance through
   :func:`ground.network.geometry_rms` (after a constant and after an affine).
+- NIIRS loss (:class:`NiirsInputs`): GIQE 5 (:func:`ground.quality.niirs_giqe5`) of the RER
+  of the static system MTF and of it times the worst exposure's motion MTF.
 
-Not predicted (refused in a design's requirements): NIIRS loss (needs the product's
-rendered edge response), yaw jitter (a rotation about the line of sight), measured jitter
-series and suspensions.
+Not predicted (refused in a design's requirements): yaw jitter (a rotation about the line
+of sight), measured jitter series and suspensions.
 """
 
 from __future__ import annotations

@@ -53,6 +53,7 @@ from imc.workflow.predict import (
     record_geometry_unit,
     residual_figures,
     tracker_bound,
+    tracker_bounds,
     tracker_snr,
 )
 
@@ -346,7 +347,7 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
     free, w = cfg.free, cfg.cost
     t0 = time.perf_counter()
     dist = Disturbance.from_scenario(base)
-    crlb = base_crlb_px(design) if crlb_px is None else crlb_px
+    crlb = crlb_px if crlb_px is not None else cfg.tracker_crlb_px
     b0 = base.correlator.block_px
     rate0 = base.camera.tracker.frame_rate_hz
     radiometric = base.camera.tracker.signal == "radiometric"
@@ -388,7 +389,21 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
     # with exposure
     eff = correlator_efficiency(cfg.verify.fidelity, base.scene.kind).at(
         base_tracker_snr(design))
-    sigma = crlb * eff * (b0 / b) / np.sqrt(nb)
+    if crlb is None:  # each block size's own bound on the base scene
+        from imc.wiring.build import build_models
+
+        table = tracker_bounds(build_models(base), free.block_px, cfg.verify.fidelity)
+        per_block = np.array([table[int(x)][0] for x in b])
+        p_kept = np.array([table[int(x)][1] for x in b])
+    else:  # a given bound at the base's block size, as one over the block's side
+        per_block = crlb * (b0 / b)
+        p_kept = np.ones(len(b))
+    # the record's network needs a link in every frame: the expected number of frames in
+    # the product's span whose every block is refused stays below 0.1 (ground correction)
+    n_frames = rate * product_span_s(base)
+    untied = np.where(ground == "correction", (1.0 - p_kept) ** nb * n_frames, 0.0)
+    kept_ok = np.isfinite(per_block) & (untied <= 0.1)
+    sigma = np.where(kept_ok, per_block, np.nan) * eff / np.sqrt(nb)
     if radiometric:
         sigma = sigma * np.sqrt(rate / rate0)
     rms, total, mtf, blur = residual_figures(det, var_rnd, gain, sigma, mtf_det, var_rnd_blur,
@@ -439,11 +454,12 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
         predicted[path] = v
         margins.append(m)
     marg = np.stack(margins, 1)
-    names = np.array([p for p, _ in reqs] + ["loop stability", "block grid / frame overlap",
+    names = np.array([p for p, _ in reqs] + ["loop stability",
+                                             "block grid / frame overlap / blocks kept",
                                           "stage stroke"],
                      object)
     rows, cols_px = base.camera.tracker.rows, base.camera.tracker.cols
-    grid_ok = nb <= np.floor(rows / b) * np.floor(cols_px / b)
+    grid_ok = (nb <= np.floor(rows / b) * np.floor(cols_px / b)) & kept_ok
     # the stroke spans -stroke / 2 .. stroke / 2 about frame 0's position; 10 % to spare
     peak = dist.open_peak_px(base.duration_s, 0.5 / rate0).max()
     stroke_ok = (stage != "piezo") | (stroke >= 2.2 * peak)
@@ -658,11 +674,21 @@ def verify(design: Design, c: Candidates, picks: list[int], out_dir: Path,
     for rank, i in enumerate(picks):
         r = c.row(i)
         measured: dict[str, list[float]] = {p: [] for p in cfg.requirements}
-        passed = []
+        passed, failures = [], []
         for s in range(cfg.verify.seeds):
             sc = parse_scenario(candidate_mapping(design, r, s), f"{cfg.name} candidate {i}")
             t0 = time.perf_counter()
-            metrics, _ = run_scenario(sc, out_dir / f"verify{rank}" / f"seed{s}", rerun=False)
+            try:
+                metrics, _ = run_scenario(sc, out_dir / f"verify{rank}" / f"seed{s}",
+                                          rerun=False)
+            except (ValueError, ScenarioError) as e:  # a run that breaks misses, reported
+                why = str(e).splitlines()[0][:300]
+                failures.append(f"seed {s}: {why}")
+                for p in cfg.requirements:
+                    measured[p].append(math.nan)
+                passed.append(False)
+                log(f"  design {rank} seed {s}: MISSES: the run failed ({why})")
+                continue
             ok = True
             for p, b in cfg.requirements.items():
                 try:
@@ -686,7 +712,7 @@ def verify(design: Design, c: Candidates, picks: list[int], out_dir: Path,
                      "predicted": r["predicted"], "measured": measured,
                      "relative_error": err, "margin_error": merr,
                      "within_target": target,
-                     "all_seeds_pass": all(passed),
+                     "all_seeds_pass": all(passed), "failed_runs": failures,
                      "seeds_passed": int(sum(passed))})
     return rows
 
@@ -865,8 +891,8 @@ def run_design(design: Design, out_dir: Path, verify_runs: bool = True,
     scenario (``<name>_design.yaml``)."""
     from imc.io import atomic_write, write_json
 
+    c = evaluate(design, progress, crlb_px=crlb_px, workers=workers)
     crlb = base_crlb_px(design) if crlb_px is None else crlb_px
-    c = evaluate(design, progress, crlb_px=crlb, workers=workers)
     front = pareto_front(c.cost, c.worst)
     chosen, reason = choose(c, design.config.margin)
     log(f"{len(c)} candidates ({c.n_loops} loops) predicted in {c.eval_s:.2f} s; "

@@ -580,16 +580,7 @@ def tracker_bound(m, fidelity: str = "texture") -> tuple[np.ndarray, float]:
     albedo lacks: the quickstart's bound is 0.65x the albedo's); else on the albedo."""
     from imc.wiring.rendered_plant import predicted_sigma_px
 
-    rad = None
-    if fidelity == "rendered":
-        from compensation.loop import Trajectory
-        from imc.wiring.rendered_plant import RenderedPlant
-
-        plant = RenderedPlant(m)
-        try:
-            rad = plant.radiance(0, Trajectory("previous"))
-        finally:
-            plant.close()
+    rad = _rendered_frame0(m) if fidelity == "rendered" else None
     crlb = predicted_sigma_px(m, fill=False, radiance=rad)
     ok = np.isfinite(crlb).all(axis=1)
     if not ok.any():
@@ -598,6 +589,51 @@ def tracker_bound(m, fidelity: str = "texture") -> tuple[np.ndarray, float]:
                             "camera.tracker.mean_signal_dn or choose a textured scene")
     fit = 1.0 / np.sqrt(np.sum(1.0 / crlb[ok] ** 2, axis=0))
     return fit * np.sqrt(ok.sum()), float(ok.mean())
+
+
+def tracker_bounds(m, sizes, fidelity: str = "texture", n_blocks: int = 9
+                   ) -> dict[int, tuple[float, float]]:
+    """The tracker's per-block bound (px, mean of the axes) at each block size of ``sizes``
+    on the base scene, as :func:`tracker_bound` gives it over the kept blocks, over the
+    square root of the kept fraction (a refused block does not average), measured on a grid
+    of ``n_blocks`` blocks of that size (inf where the correlator keeps none, or the block
+    exceeds the sensor); and the probability that a block is kept, by Laplace's rule of
+    succession on that grid ((kept + 1) / (n + 2): nine kept of nine is 0.91)."""
+    from correlator.tracker import block_grid
+    from imc.wiring.rendered_plant import predicted_sigma_px
+
+    rad = _rendered_frame0(m) if fidelity == "rendered" else None
+    fp = m.camera.focal_plane
+    out = {}
+    for b in sorted({int(x) for x in sizes}):
+        if b > min(fp.rows, fp.cols):
+            out[b] = (np.inf, 0.0)
+            continue
+        sc_b = m.scenario.model_copy(update={
+            "correlator": m.scenario.correlator.model_copy(update={"block_px": b})})
+        mb = dataclasses.replace(m, scenario=sc_b,
+                                 corners=block_grid(fp.rows, fp.cols, b, n_blocks))
+        crlb = predicted_sigma_px(mb, fill=False, radiance=rad)
+        ok = np.isfinite(crlb).all(axis=1)
+        p_kept = (ok.sum() + 1.0) / (len(ok) + 2.0)
+        if not ok.any():
+            out[b] = (np.inf, p_kept)
+            continue
+        fit = 1.0 / np.sqrt(np.sum(1.0 / crlb[ok] ** 2, axis=0))
+        out[b] = (float(np.mean(fit * np.sqrt(ok.sum())) / np.sqrt(ok.mean())), p_kept)
+    return out
+
+
+def _rendered_frame0(m) -> np.ndarray:
+    """Frame 0's radiance as the rendered plant renders it (the stage at rest)."""
+    from compensation.loop import Trajectory
+    from imc.wiring.rendered_plant import RenderedPlant
+
+    plant = RenderedPlant(m)
+    try:
+        return plant.radiance(0, Trajectory("previous"))
+    finally:
+        plant.close()
 
 
 def predict_scenario(sc: Scenario, fidelity: str | None = None,

@@ -387,15 +387,17 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
     lock = np.array([p.lock_s for p in preds], float)[li]
     # the tracker: bound x efficiency x (b0 / b) / sqrt(n); radiometric signal: shot noise
     # with exposure
-    eff = correlator_efficiency(cfg.verify.fidelity, base.scene.kind).at(
-        base_tracker_snr(design))
-    if crlb is None:  # each block size's own bound on the base scene
+    efficiency = correlator_efficiency(cfg.verify.fidelity, base.scene.kind)
+    if crlb is None:  # each block size's own bound on the base scene (its models built once)
         from imc.wiring.build import build_models
 
-        table = tracker_bounds(build_models(base), free.block_px, cfg.verify.fidelity)
+        m = build_models(base)
+        eff = efficiency.at(tracker_snr(m))
+        table = tracker_bounds(m, free.block_px, cfg.verify.fidelity)
         per_block = np.array([table[int(x)][0] for x in b])
         p_kept = np.array([table[int(x)][1] for x in b])
     else:  # a given bound at the base's block size, as one over the block's side
+        eff = efficiency.at(base_tracker_snr(design))
         per_block = crlb * (b0 / b)
         p_kept = np.ones(len(b))
     # the record's network needs a link in every frame: the expected number of frames in

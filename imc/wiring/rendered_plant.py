@@ -318,10 +318,13 @@ def base_image(m: Models, margin_px) -> np.ndarray:
     return map_coordinates(alb, [row, col], order=1, mode="nearest")
 
 
-def predicted_sigma_px(m: Models) -> np.ndarray:
-    """The correlator's predicted 1-sigma error (B, 2) on this scene: frame 0's content
-    (flat shading) exposed twice with independent noise, block against block."""
-    rad = base_image(m, 0)
+def predicted_sigma_px(m: Models, fill: bool = True,
+                       radiance: np.ndarray | None = None) -> np.ndarray:
+    """The correlator's predicted 1-sigma error (B, 2) px on this scene: frame 0's content
+    (flat shading; or ``radiance``, e.g. a rendered frame 0) exposed twice with independent
+    noise, block against block; a block the correlator refuses gets the others' median
+    (``fill``) or NaN."""
+    rad = base_image(m, 0) if radiance is None else radiance
     gain = m.sensor.gain_for(m.optics.apply(rad))
     a = expose_frame(m, rad, gain, streams.rng(m.scenario.seed, "texture", 0))
     b = expose_frame(m, rad, gain, streams.rng(m.scenario.seed, "texture", 1))
@@ -329,6 +332,8 @@ def predicted_sigma_px(m: Models) -> np.ndarray:
     tracker = BlockTracker(a, m.corners, bp, m.correlator)
     res = tracker.correlator.measure(extract_blocks(b, m.corners, bp))
     crlb = np.where(res.valid[:, None], res.crlb, np.nan)
+    if not fill:
+        return crlb
     if not np.isfinite(crlb).any():
         return np.full((len(m.corners), 2), 0.05)
     return np.where(np.isfinite(crlb), crlb, np.nanmedian(crlb))

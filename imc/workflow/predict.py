@@ -1,35 +1,40 @@
 """Fast predictions of a candidate design's metrics (milliseconds per candidate), from the
-models imcsim already has; what `imc design` searches with.
+models imcsim already has; what `imc design` searches with, and what
+:func:`predict_scenario` predicts a whole scenario with (its own loop as a run wires it).
 
 - The loop (:class:`compensation.analytic.LoopModel`, built here as
   :func:`imc.wiring.build.build_loop` builds it): the sinusoids' residual is the linear loop
   run from the first frame (:func:`sinusoid_residual`: the commands through the loop's
   transfer, the stage's held-command response summed: acquisition and the ripple between
   commands included, which |S(f)| alone, the fundamental, misses); a random (PSD) term's
-  variance is
-  the integral of PSD |S|^2; the tracker's white error of sigma per frame gives the loop's
-  noise RMS (:meth:`LoopModel.noise_rms_px`, linear in sigma). A Kalman predictor with a
-  stated ``bandwidth_hz`` has a noise-independent gain (its process noise scales with
-  sigma^2), so one loop model serves every block size and count.
-- The tracker: the Cramer-Rao bound of the base scene's texture at the tracker's SNR
-  (:func:`imc.wiring.rendered_plant.predicted_sigma_px`, once per design), scaled by
-  block_px0 / block_px (the bound goes as one over the block's side), divided by
-  sqrt(n_blocks) (the motion-field fit averages the blocks), times the correlator's
-  efficiency (measured error / bound; 1 by construction for the analytic plant, which
-  draws its noise at the bound).
+  variance is the integral of PSD |S|^2; the tracker's white error of sigma per frame goes
+  through the loop's noise density (:meth:`LoopModel.noise_rms_px`'s Parseval, linear in
+  sigma). A TDI line's residual counts from the line's start, as ``imc.wiring.truth``
+  measures it (:func:`window_weights`). A Kalman predictor with a stated ``bandwidth_hz``
+  has a noise-independent gain (its process noise scales with sigma^2), so one loop model
+  serves every block size and count.
+- The tracker: the Cramer-Rao bound of the base scene's texture at the tracker's SNR over
+  the blocks the correlator keeps (:func:`tracker_bound`, once per design; the rendered
+  plant's on a rendered frame 0), scaled by block_px0 / block_px (the bound goes as one
+  over the block's side), divided by sqrt(n_blocks) (the motion-field fit averages the
+  blocks), times the correlator's efficiency (:data:`CORRELATOR_EFFICIENCY`: per plant and
+  scene kind against SNR, calibrated by ``benchmarks/bench_design.py --calibrate``; 1 by
+  construction for the analytic plant, which draws its noise at the bound).
 - Motion MTF at Nyquist per exposure (:func:`compensation.metrics.motion_mtf`): the
   sinusoids' residual over each main-imager exposure from ``start_s`` on, times the
-  Gaussian factor exp(-pi^2 sigma^2 / 2) of the random and noise residual (its whole
-  variance counted within one exposure: conservative).
+  Gaussian factor exp(-pi^2 var / 2) of the random and noise residual's variance about the
+  exposure's mean.
 - Lock time: :func:`compensation.lock.analytic_lock_time` of the same model.
 - Geometry after ground correction by the record: the record's network
-  (:meth:`ground.network.Links.baselines` on a synthetic series of the product's tracker
-  frames, :func:`ground.network.solve_network`) and its covariance through
+  (:meth:`ground.network.Links.baselines` on a synthetic series of the tracker frames
+  within the product's span, with the overlap's baselines,
+  :func:`ground.network.solve_network`) and its covariance through
   :func:`ground.network.geometry_rms` (after a constant and after an affine).
+- NIIRS loss (:class:`NiirsInputs`): GIQE 5 (:func:`ground.quality.niirs_giqe5`) of the RER
+  of the static system MTF and of it times the worst exposure's motion MTF.
 
-Not predicted (refused in a design's requirements): NIIRS loss (needs the product's
-rendered edge response), yaw jitter (a rotation about the line of sight), measured jitter
-series and suspensions.
+Not predicted (refused in a design's requirements): yaw jitter (a rotation about the line
+of sight), measured jitter series and suspensions.
 """
 
 from __future__ import annotations
@@ -48,6 +53,10 @@ from imc.scenario import Scenario, ScenarioError
 AXIS = {"pitch": 0, "roll": 1}
 #: Nyquist, cycles/px
 NYQUIST = 0.5
+#: the frequencies (cycles/px) over which the NIIRS predictor integrates the edge response
+#: (past the IKONOS-like optics' cutoff, 1.24 cycles/px; the detector's sinc beyond 4
+#: cycles/px moves the RER by < 0.01, alike with and without motion)
+NIIRS_FREQS = np.linspace(0.0, 4.0, 257)
 #: the requirement paths a design may bound, and what predicts each
 SUPPORTED: dict[str, str] = {
     "with_compensation.rms_total_px": "loop: jitter through |S(f)| + tracker noise gain",
@@ -60,7 +69,75 @@ SUPPORTED: dict[str, str] = {
     "loop.lock.analytic_s": "the loop's analytic lock time",
     "product.geometry.open.after.rms_px": "record network covariance, after a constant",
     "product.geometry.open.affine.rms_px": "record network covariance, after an affine",
+    "product.quality.closed.niirs_loss": "GIQE 5 (pyBSM) of the RER of the static system MTF "
+    "times the worst exposure's motion MTF (a candidate without a stage: the open product)",
 }
+#: the NIIRS loss requirement's path (a candidate without a stage is measured on
+#: ``product.quality.open.niirs_loss``: it has no closed product)
+NIIRS_PATH = "product.quality.closed.niirs_loss"
+
+@dataclass(frozen=True)
+class Efficiency:
+    """The correlator's efficiency on a plant and scene kind: the loop's noise residual over
+    what the predictor gives at efficiency 1 (noise gain x the bound over the kept blocks),
+    dimensionless, as ``factor`` at a tracker SNR of 20 plus ``slope`` per decade of SNR
+    (the SNR held to the calibrated 10-40), the residuals' standard deviation ``spread``
+    about that line, and where the figures come from."""
+
+    factor: float
+    slope: float
+    spread: float
+    source: str
+
+    def at(self, snr: float) -> float:
+        """The factor at a tracker SNR (mean signal over noise sigma), dimensionless."""
+        s = float(np.clip(snr, 10.0, 40.0)) if np.isfinite(snr) else 20.0
+        return max(0.1, self.factor + self.slope * np.log10(s / 20.0))
+
+
+_TEXTURE = "texture plant, benchmarks/bench_design.py --calibrate texture"
+_RENDERED = "rendered plant, benchmarks/bench_design.py --calibrate rendered"
+#: the correlator's efficiency per plant fidelity and scene kind ('*': every kind, for a
+#: kind not calibrated), calibrated on cases outside the ones the predictions are judged
+#: on: the quickstart's camera and loop on 300 m tiles of each kind (seeds 101 and 202,
+#: not the bundled scenarios' scenes), no jitter, SNR 10, 20, 40; 12 values per kind (3
+#: SNRs x 2 seeds x 2 axes). The analytic plant draws its noise at the bound: 1.
+CORRELATOR_EFFICIENCY: dict[str, dict[str, Efficiency]] = {
+    "analytic": {"*": Efficiency(1.0, 0.0, 0.0, "by construction: the analytic plant draws "
+                                 "its noise at the bound")},
+    "texture": {
+        "procedural": Efficiency(0.78, -0.56, 0.09, _TEXTURE),
+        "urban": Efficiency(0.97, -0.20, 0.20, _TEXTURE),
+        "rural": Efficiency(0.89, -0.70, 0.28, _TEXTURE),
+        "mountain": Efficiency(1.40, -1.15, 0.18, _TEXTURE),
+        "*": Efficiency(1.01, -0.65, 0.32, _TEXTURE + " (the 48 values of all four kinds)"),
+    },
+    # on the bound of a rendered frame 0 (tracker_bound); the rendered plant's error has a
+    # floor the bound does not carry where the scene has 3-D structure (urban buildings'
+    # parallax and shadows, mountain clouds: residual 0.025-0.05 px at SNR 40 against a
+    # bound of 0.005-0.008 px), so efficiency grows with SNR and those kinds fit poorly
+    # (seed 101 only: 6 values each)
+    "rendered": {
+        "procedural": Efficiency(1.51, 1.35, 0.10, _RENDERED),
+        "rural": Efficiency(1.33, 0.70, 0.42, _RENDERED),
+        "urban": Efficiency(4.60, 8.09, 0.52, _RENDERED),
+        "mountain": Efficiency(4.96, 6.15, 1.77, _RENDERED),
+        "*": Efficiency(2.78, 3.53, 1.99, _RENDERED + " (the 30 values of all four kinds)"),
+    },
+}
+
+
+def correlator_efficiency(fidelity: str, kind: str = "*") -> Efficiency:
+    """The calibrated :class:`Efficiency` of a plant fidelity on a scene kind (the kinds'
+    pooled one for a kind not calibrated; a ScenarioError for a plant not calibrated)."""
+    try:
+        table = CORRELATOR_EFFICIENCY[fidelity]
+    except KeyError:
+        raise ScenarioError(f"plant.fidelity {fidelity!r}: the correlator's efficiency is "
+                            f"calibrated for {', '.join(CORRELATOR_EFFICIENCY)} only") from None
+    return table.get(kind, table["*"])
+
+
 @dataclass(frozen=True, eq=False)
 class Disturbance:
     """The base scenario's jitter as the predictor sees it (image px, per axis).
@@ -154,7 +231,10 @@ class LoopPrediction:
     """What one loop does to the base's jitter: ``ok`` (stable with the base's margins, or
     why not), the deterministic residual RMS per axis, the random terms' residual variance
     per axis, the noise RMS per px of tracker sigma, the sinusoids' worst-exposure motion
-    MTF per axis, and the analytic lock time (s)."""
+    MTF per axis, the analytic lock time (s), the worst exposure's motion MTF (F, 2) at
+    :data:`NIIRS_FREQS` per axis (the NIIRS predictor's; None when refused), and the noise
+    gain and random terms' variance of the residual about each exposure's mean (what blurs;
+    the RMS counts the residual against the reference, or a TDI line's start)."""
 
     ok: bool
     why: str
@@ -163,6 +243,9 @@ class LoopPrediction:
     noise_gain: float
     mtf_det_worst: tuple[float, float]
     lock_s: float
+    mtf_det_curve: np.ndarray | None = dataclasses.field(default=None, compare=False)
+    noise_gain_blur: float = np.nan
+    var_rnd_blur_px2: tuple[float, float] = (np.nan, np.nan)
 
 
 def controller_block(choice: LoopChoice, base: Scenario) -> dict:
@@ -242,6 +325,16 @@ def exposure_windows(base: Scenario) -> tuple[float, float, float]:
     return mi.start_s, base.duration_s, window
 
 
+def product_span_s(base: Scenario) -> float:
+    """The time the main imager's product spans, s: a TDI strip's lines over the line rate
+    (the ground corrects those lines from the record's frames within it), else the run."""
+    mi = base.camera.main_imager
+    if mi.kind != "tdi":
+        return base.duration_s
+    line = mi.line_rate_hz or nominal_line_rate_hz(base)
+    return float(min(base.duration_s, base.product.lines / line))
+
+
 def nominal_line_rate_hz(base: Scenario) -> float:
     """A TDI imager's synchronous line rate at nadir (ground speed / GSD), Hz."""
     gm, r_e = 3.986004418e14, 6.371e6
@@ -255,15 +348,25 @@ def predict_loop(choice: LoopChoice, base: Scenario, dist: Disturbance,
                  samples_per_window: int = 32, lock: bool = True) -> LoopPrediction:
     """The loop's part of the predictions (see the module docstring); ``lock``: the lock
     time too (an eigenvalue problem of the plant's order: skipped when not asked for)."""
+    return predict_model(loop_model(choice, base), base, dist,
+                         tracker_exposure_s(base, choice.rate_hz), samples_per_window, lock)
+
+
+def predict_model(model, base: Scenario, dist: Disturbance, exposure_s: float,
+                  samples_per_window: int = 32, lock: bool = True) -> LoopPrediction:
+    """:func:`predict_loop` of a built :class:`LoopModel` (None: no stage, the open loop):
+    what a candidate and a bundled scenario's own loop (:func:`predict_scenario`) share;
+    ``exposure_s``: the tracker's exposure, s."""
     from compensation.lock import analytic_lock_time
 
-    model = loop_model(choice, base)
     start, end, window = exposure_windows(base)
     n_win = max(1, int(np.floor((end - start) / window + 1e-9)))
     t = start + (np.arange(n_win * samples_per_window) + 0.5) * window / samples_per_window
+    tdi = base.camera.main_imager.kind == "tdi"
+    w_rms, w_blur = window_weights(window, tdi)
     if model is None:
         s_rnd = np.ones(len(dist.rnd_f_hz))
-        ok, why, noise, lock_s = True, "", 0.0, 0.0
+        ok, why, noise, noise_blur, lock_s = True, "", 0.0, 0.0, 0.0
     else:
         mg = model.margins(n_points=501)
         comp = base.compensation
@@ -276,18 +379,50 @@ def predict_loop(choice: LoopChoice, base: Scenario, dist: Disturbance,
             nan2 = (np.nan, np.nan)
             return LoopPrediction(False, why, nan2, nan2, np.nan, nan2, np.inf)
         s_rnd = np.abs(model.rejection(dist.rnd_f_hz)) ** 2
-        noise = model.noise_rms_px(1.0, f_max_factor=4.0, n_points=1024)
+        # the noise's residual density per unit sigma^2 (LoopModel.noise_rms_px's Parseval)
+        f = (np.arange(1024) + 0.5) / 1024 * 4.0 * model.rate_hz
+        dens = 2.0 * model.period_s * np.abs(model.command_tf(f) * model.stage_response(f)) ** 2
+        df = f[1] - f[0]
+        noise = float(np.sqrt(np.sum(dens * w_rms(f)) * df))
+        noise_blur = float(np.sqrt(np.sum(dens * w_blur(f)) * df))
         lock_s = (float(analytic_lock_time(model, band=0.05, max_s=60.0).lock_s) if lock
                   else np.nan)
-    r = sinusoid_residual(model, dist, end, t, tracker_exposure_s(base, choice.rate_hz))
+    if tdi:  # each line's residual counts from the line's start (imc.wiring.truth)
+        starts = start + np.arange(n_win) * window
+        r_all = sinusoid_residual(model, dist, end, np.concatenate([t, starts]), exposure_s)
+        r = r_all[: len(t)] - np.repeat(r_all[len(t):], samples_per_window, axis=0)
+    else:
+        r = sinusoid_residual(model, dist, end, t, exposure_s)
     rms = np.mean(r**2, axis=0)
     # each exposure about its own mean is what blurs; the metric's phase is relative to 0
     win = r.reshape(n_win, samples_per_window, 2)
-    mtf = np.stack([motion_mtf(win, NYQUIST, 0), motion_mtf(win, NYQUIST, 1)], -1).min(0)
-    var_rnd = (np.trapezoid(dist.rnd_psd_px2_hz * s_rnd[:, None], dist.rnd_f_hz, axis=0)
-               if len(dist.rnd_f_hz) > 1 else np.zeros(2))
-    return LoopPrediction(ok, why, tuple(np.sqrt(rms)), tuple(var_rnd), float(noise),
-                          tuple(mtf), lock_s)
+    per_win = np.stack([motion_mtf(win, NYQUIST, 0), motion_mtf(win, NYQUIST, 1)], -1)
+    mtf = per_win.min(0)
+    worst = win[per_win.argmin(0), :, [0, 1]]  # (2, S): each axis's worst exposure
+    curve = np.abs(np.exp(-2j * np.pi * NIIRS_FREQS[:, None, None] * worst[None]).mean(-1))
+    def rnd(weight):
+        if len(dist.rnd_f_hz) < 2:
+            return np.zeros(2)
+        fr = dist.rnd_f_hz
+        return np.trapezoid(dist.rnd_psd_px2_hz * (s_rnd * weight(fr))[:, None], fr, axis=0)
+
+    return LoopPrediction(ok, why, tuple(np.sqrt(rms)), tuple(rnd(w_rms)), float(noise),
+                          tuple(mtf), lock_s, curve, noise_blur, tuple(rnd(w_blur)))
+
+
+def window_weights(window_s: float, tdi: bool):
+    """(w_rms, w_blur): the share of a residual sinusoid's variance at f (Hz) that the
+    residual RMS counts (1 against a fixed reference; a TDI line's residual counts from the
+    line's start: 2 (1 - sinc(2 f w)), the mean over the line of 1 - cos 2 pi f tau) and
+    that blurs one exposure (about its mean: 1 - sinc(f w)^2), random phases."""
+    def w_rms(f):
+        f = np.asarray(f, float)
+        return 2.0 * (1.0 - np.sinc(2.0 * f * window_s)) if tdi else np.ones_like(f)
+
+    def w_blur(f):
+        return 1.0 - np.sinc(np.asarray(f, float) * window_s) ** 2
+
+    return w_rms, w_blur
 
 
 def _exposure_means(dist: Disturbance, t0_s: np.ndarray, exposure_s: float) -> np.ndarray:
@@ -402,3 +537,229 @@ def predict_loops(choices: list[LoopChoice], base: Scenario, dist: Disturbance,
             if progress is not None:
                 progress(done, len(choices))
     return out  # type: ignore[return-value]
+
+
+def residual_figures(det_px: np.ndarray, var_rnd_px2: np.ndarray, noise_gain: np.ndarray,
+                     sigma_px: np.ndarray, mtf_det: np.ndarray, var_rnd_blur_px2: np.ndarray,
+                     noise_gain_blur: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The residual's figures from the loop's parts: RMS per axis (..., 2) px, total RMS (...)
+    px, and the worst exposure's motion MTF at Nyquist per axis (..., 2).
+
+    det_px (..., 2) : the sinusoids' residual RMS; var_rnd_px2 (..., 2) : the random terms'
+    residual variance; noise_gain (...) : residual RMS per px of tracker sigma; sigma_px
+    (...) or (..., 2) : the tracker's error per frame after the block fit; mtf_det (..., 2) :
+    the sinusoids' worst-exposure MTF, times the Gaussian factor exp(-pi^2 var / 2) at
+    Nyquist of the random and noise residual's variance about an exposure's mean
+    (``var_rnd_blur_px2`` (..., 2), ``noise_gain_blur`` (...)). Also returns that variance
+    (..., 2) px^2 (the NIIRS predictor's Gaussian).
+    """
+    sig = np.asarray(sigma_px, float)
+    gain = np.asarray(noise_gain, float)
+    if sig.ndim == gain.ndim:
+        sig = sig[..., None]
+    noise2 = (gain[..., None] * sig) ** 2
+    var = det_px**2 + var_rnd_px2 + noise2
+    blur = var_rnd_blur_px2 + (np.asarray(noise_gain_blur, float)[..., None] * sig) ** 2
+    return (np.sqrt(var), np.sqrt(var.sum(axis=-1)), mtf_det * np.exp(-(np.pi**2) * blur / 2),
+            blur)
+
+
+def tracker_snr(m) -> float:
+    """The tracker's SNR (mean signal over noise sigma at its exposure), dimensionless."""
+    return float(m.sensor.snr(exposure_s=m.exposure_s))
+
+
+def tracker_bound(m, fidelity: str = "texture") -> tuple[np.ndarray, float]:
+    """The tracker's bound on a built run's base scene
+    (:func:`imc.wiring.rendered_plant.predicted_sigma_px`): the per-block bound (2,) px
+    that, over the kept blocks, gives their inverse-variance fit (the motion-field fit's
+    weights): ``fit * sqrt(n_kept)``; and the fraction of blocks the correlator keeps (a
+    textureless block is refused in a run, so it does not average). ``fidelity``
+    'rendered': on frame 0 as Mitsuba renders it (the relief's shading is texture the flat
+    albedo lacks: the quickstart's bound is 0.65x the albedo's); else on the albedo."""
+    from imc.wiring.rendered_plant import predicted_sigma_px
+
+    rad = _rendered_frame0(m) if fidelity == "rendered" else None
+    crlb = predicted_sigma_px(m, fill=False, radiance=rad)
+    ok = np.isfinite(crlb).all(axis=1)
+    if not ok.any():
+        raise ScenarioError("base: the correlator refuses every block of the base scene at "
+                            "the tracker's SNR (no texture): no tracker predictor; raise "
+                            "camera.tracker.mean_signal_dn or choose a textured scene")
+    fit = 1.0 / np.sqrt(np.sum(1.0 / crlb[ok] ** 2, axis=0))
+    return fit * np.sqrt(ok.sum()), float(ok.mean())
+
+
+def tracker_bounds(m, sizes, fidelity: str = "texture", n_blocks: int = 9
+                   ) -> dict[int, tuple[float, float]]:
+    """The tracker's per-block bound (px, mean of the axes) at each block size of ``sizes``
+    on the base scene, as :func:`tracker_bound` gives it over the kept blocks, over the
+    square root of the kept fraction (a refused block does not average), measured on a grid
+    of ``n_blocks`` blocks of that size (inf where the correlator keeps none, or the block
+    exceeds the sensor); and the probability that a block is kept, by Laplace's rule of
+    succession on that grid ((kept + 1) / (n + 2): nine kept of nine is 0.91)."""
+    from correlator.tracker import block_grid
+    from imc.wiring.rendered_plant import predicted_sigma_px
+
+    rad = _rendered_frame0(m) if fidelity == "rendered" else None
+    fp = m.camera.focal_plane
+    out = {}
+    for b in sorted({int(x) for x in sizes}):
+        if b > min(fp.rows, fp.cols):
+            out[b] = (np.inf, 0.0)
+            continue
+        sc_b = m.scenario.model_copy(update={
+            "correlator": m.scenario.correlator.model_copy(update={"block_px": b})})
+        mb = dataclasses.replace(m, scenario=sc_b,
+                                 corners=block_grid(fp.rows, fp.cols, b, n_blocks))
+        crlb = predicted_sigma_px(mb, fill=False, radiance=rad)
+        ok = np.isfinite(crlb).all(axis=1)
+        p_kept = (ok.sum() + 1.0) / (len(ok) + 2.0)
+        if not ok.any():
+            out[b] = (np.inf, p_kept)
+            continue
+        fit = 1.0 / np.sqrt(np.sum(1.0 / crlb[ok] ** 2, axis=0))
+        out[b] = (float(np.mean(fit * np.sqrt(ok.sum())) / np.sqrt(ok.mean())), p_kept)
+    return out
+
+
+def _rendered_frame0(m) -> np.ndarray:
+    """Frame 0's radiance as the rendered plant renders it (the stage at rest)."""
+    from compensation.loop import Trajectory
+    from imc.wiring.rendered_plant import RenderedPlant
+
+    plant = RenderedPlant(m)
+    try:
+        return plant.radiance(0, Trajectory("previous"))
+    finally:
+        plant.close()
+
+
+def predict_scenario(sc: Scenario, fidelity: str | None = None,
+                     efficiency: float | None = None) -> dict[str, object]:
+    """A scenario predicted as `imc design` predicts a candidate, with the scenario's own
+    loop (:func:`imc.wiring.build.build_loop`: its controller, lines, latency and stage as
+    wired for a run): the metrics of :data:`SUPPORTED` (per axis where the run reports a
+    pair) and the parts they are built from. ``fidelity``: the plant whose bound and
+    correlator efficiency the tracker's error is (default: the scenario's); ``efficiency``:
+    this factor instead of the plant's calibrated one (the calibration's 1)."""
+    from imc.wiring.build import build_loop, build_models
+
+    m = build_models(sc)
+    parts = build_loop(m)
+    model = parts.model if sc.compensation.enabled else None
+    dist = Disturbance.from_scenario(sc)
+    p = predict_model(model, sc, dist, m.exposure_s)
+    fid = fidelity or sc.plant.fidelity
+    crlb, kept = tracker_bound(m, fid)
+    eff = correlator_efficiency(fid, sc.scene.kind) if efficiency is None else Efficiency(
+        efficiency, 0.0, 0.0, "given")
+    snr = tracker_snr(m)
+    sigma = crlb * eff.at(snr) / np.sqrt(len(m.corners) * kept)
+    rms, total, mtf, blur = residual_figures(
+        np.array(p.rms_det_px), np.array(p.var_rnd_px2), np.array(p.noise_gain), sigma,
+        np.array(p.mtf_det_worst), np.array(p.var_rnd_blur_px2), np.array(p.noise_gain_blur))
+    from imc.wiring.links import overlap_baselines
+
+    kmax = sc.product.restitution.baselines or overlap_baselines(m)
+    staring = sc.attitude.mode == "target"
+    c_u, a_u = record_geometry_unit(m.rate_hz, product_span_s(sc), 0 if staring else kmax)
+    ni = NiirsInputs.from_models(m)
+    niirs = ni.loss(p.mtf_det_curve, blur)
+    po = predict_model(None, sc, dist, m.exposure_s, lock=False)  # the open loop's product
+    niirs_open = ni.loss(po.mtf_det_curve, np.array(po.var_rnd_blur_px2))
+    return {"with_compensation.rms_px": rms.tolist(),
+            "with_compensation.rms_total_px": float(total),
+            "with_compensation.mtf_nyquist_worst": mtf.tolist(),
+            "loop.lock.analytic_s": float(p.lock_s),
+            "product.quality.closed.niirs_loss": niirs[0],
+            "product.quality.open.niirs_loss": niirs_open[0],
+            "product.geometry.open.after.rms_px": (c_u * sigma).tolist(),
+            "product.geometry.open.affine.rms_px": (a_u * sigma).tolist(),
+            "parts": {"crlb_px": crlb.tolist(), "kept_fraction": kept, "tracker_snr": snr,
+                      "noise_gain_blur": float(p.noise_gain_blur),
+                      "efficiency": eff.at(snr), "efficiency_spread": eff.spread,
+                      "sigma_px": sigma.tolist(), "noise_gain": float(p.noise_gain),
+                      "rms_det_px": list(p.rms_det_px), "var_rnd_px2": list(p.var_rnd_px2),
+                      "mtf_det_worst": list(p.mtf_det_worst), "loop_ok": p.ok,
+                      "niirs": {"rer_static": ni.rer_static(), "rer_closed": niirs[1].tolist(),
+                                "rer_open": niirs_open[1].tolist(), "snr": ni.snr,
+                                "gsd_m": ni.gsd_m}}}
+
+
+# ------------------------------------------------------------------------------ NIIRS
+
+
+def rer_from_mtf(f_cyc_px: np.ndarray, mtf: np.ndarray) -> np.ndarray:
+    """The relative edge response (GIQE's RER: the edge response's rise from -0.5 to +0.5 px)
+    of a symmetric system with this MTF along the last axis (frequencies ``f_cyc_px``,
+    cycles/px, from 0): (2 / pi) integral of MTF(f) sin(pi f) / f df, dimensionless."""
+    f = np.asarray(f_cyc_px, float)
+    kernel = np.where(f > 0, np.sin(np.pi * f) / np.where(f > 0, f, 1.0), np.pi)
+    return (2.0 / np.pi) * np.trapezoid(np.asarray(mtf) * kernel, f, axis=-1)
+
+
+@dataclass(frozen=True, eq=False)
+class NiirsInputs:
+    """What the NIIRS predictor holds fixed for a base scenario's product: the static
+    system MTF (F,) at :data:`NIIRS_FREQS` (the optics, :meth:`camera.optics.Optics.mtf`,
+    times the detector's box footprint |sinc f|), the GSD (m,
+    :func:`imc.wiring.product.gsd_m`), the product target's contrast SNR and the elevation
+    (rad) as the product measures them (:func:`imc.wiring.product.measure_quality`)."""
+
+    static_mtf: np.ndarray
+    gsd_m: float
+    snr: float
+    elevation_rad: float
+
+    @classmethod
+    def from_models(cls, m) -> NiirsInputs:
+        """The inputs of a built run (``imc.wiring.build.build_models``).
+
+        The contrast SNR is the product target's (:func:`scene.targets.slanted_square`: its
+        square, half the product's smaller side, of albedo SQUARE_ALBEDO[1] on
+        SQUARE_ALBEDO[0], the product's mean set to the sensor's mean level): the two
+        albedos' difference in DN over the sensor's noise at the square's level, for the
+        main imager's integration time.
+        """
+        from imc.wiring.product import gsd_m
+        from scene.targets import SQUARE_ALBEDO
+
+        sc = m.scenario
+        lines, cols = sc.product.lines, sc.product.cols
+        n = min(lines, max(cols, 256))  # the target's lines (imc.wiring.product.target_window)
+        frac = (0.5 * min(n, cols)) ** 2 / (n * cols)
+        lo, hi = SQUARE_ALBEDO
+        mean_albedo = lo + (hi - lo) * frac
+        s = m.sensor
+        dn_hi = s.mean_signal_dn * hi / mean_albedo
+        contrast = s.mean_signal_dn * (hi - lo) / mean_albedo
+        sigma = float(s.noise_sigma_dn_at(dn_hi * s.gain_e_per_dn,
+                                          float(m.imager.integration_s())))
+        off_nadir = float(m.main_camera.attitude.off_nadir_deg(m.main_camera.orbit, 0.0))
+        f = NIIRS_FREQS
+        return cls(m.optics.mtf(f) * np.abs(np.sinc(f)), gsd_m(m), contrast / sigma,
+                   float(np.deg2rad(90.0 - off_nadir)))
+
+    def rer_static(self) -> float:
+        """The static product's RER (both axes alike), dimensionless."""
+        return float(rer_from_mtf(NIIRS_FREQS, self.static_mtf))
+
+    def loss(self, motion_mtf: np.ndarray, var_px2) -> tuple[float, np.ndarray]:
+        """NIIRS loss (GIQE 5, :func:`ground.quality.niirs_giqe5`) of the product against
+        the static one, and the RER per axis (2,) with the motion: the worst exposure's
+        motion MTF ``motion_mtf`` (F, 2) at :data:`NIIRS_FREQS` times the Gaussian of the
+        random and noise residual of variance ``var_px2`` (2,) px^2, times the static
+        system MTF; the GSD, SNR and elevation unchanged."""
+        from ground.quality import niirs_giqe5
+
+        f = NIIRS_FREQS
+        gauss = np.exp(-2.0 * np.pi**2 * np.asarray(var_px2, float)[None, :] * f[:, None] ** 2)
+        rer = rer_from_mtf(f, (self.static_mtf[:, None] * motion_mtf * gauss).T)
+        r0 = self.rer_static()
+        if not np.all(rer > 0):
+            return np.inf, rer
+        n0 = niirs_giqe5(r0, r0, self.gsd_m, self.snr, self.elevation_rad)
+        n1 = niirs_giqe5(rer[0], rer[1], self.gsd_m, self.snr, self.elevation_rad)
+        return float(n0 - n1), rer

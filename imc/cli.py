@@ -722,14 +722,16 @@ def design(
 
 
 def _scenario_files(paths: list[Path]) -> list[Path]:
-    """The scenario YAMLs under the paths (folders searched recursively; sweep files left
-    out), in order, each once."""
+    """The scenario YAMLs under the paths (folders searched recursively; sweep and design
+    files left out), in order, each once."""
 
+    from imc.workflow.design import is_design_file
     from imc.workflow.sweep import is_sweep_file
 
     def sweep_like(f: Path) -> bool:
         try:
-            return is_sweep_file(load_yaml(read_text(f)))
+            data = load_yaml(read_text(f))
+            return is_sweep_file(data) or is_design_file(data)
         except YamlInputError:
             return False  # load_scenario names the problem
 
@@ -738,7 +740,8 @@ def _scenario_files(paths: list[Path]) -> list[Path]:
         if not p.exists():
             _fail(f"{p}: no such file or folder")
         for f in sorted(p.rglob("*.yaml")) + sorted(p.rglob("*.yml")) if p.is_dir() else [p]:
-            # a file named on the command line is a scenario; in a folder, sweeps are skipped
+            # a file named on the command line is a scenario; in a folder, sweeps and designs
+            # are skipped
             if not (p.is_dir() and sweep_like(f)) and f not in found:
                 found.append(f)
     return found
@@ -772,7 +775,7 @@ def _missing_inputs(sc) -> list[Path]:
 @_guarded
 def check(
     paths: list[Path] = typer.Argument(..., help="scenario files or folders (searched for "
-                                       "*.yaml; sweep files are skipped)"),
+                                       "*.yaml; sweep and design files are skipped)"),
     junit: Path | None = typer.Option(None, "--junit", help="write JUnit XML here (one "
                                       "testcase per scenario)"),
     out_dir: Path = typer.Option(Path("runs/check"), "--out", help="folder of the runs "

@@ -165,3 +165,20 @@ def test_imc_check_skips_a_scenario_whose_data_is_not_fetched(tmp_path):
     line = next(x for x in r.output.splitlines() if x.startswith("skipped"))
     assert "olinda" in line and "L7_ETMs.tif" in line and "make data" in line
     assert "0 of 0 scenarios passed" in r.output
+
+
+def test_imc_check_on_a_folder_leaves_out_sweeps_and_designs(tmp_path):
+    """A folder holds scenarios beside sweeps and designs (scenarios/ does): `imc check` on
+    it runs the scenarios only; a design file named on its own is still a scenario and is
+    refused in one line."""
+    import shutil
+
+    from imc.cli import _scenario_files
+
+    for sub in ("sweeps", "designs"):
+        shutil.copytree(ROOT / "scenarios" / sub, tmp_path / sub)
+    shutil.copy(ROOT / "scenarios" / "quickstart.yaml", tmp_path / "quickstart.yaml")
+    assert _scenario_files([tmp_path]) == [tmp_path / "quickstart.yaml"]
+    design = tmp_path / "designs" / "quickstart_frame.yaml"
+    r = cli.invoke(app, ["check", str(design), "--out", str(tmp_path / "runs")])
+    assert r.exit_code == 2 and "base" in r.output and "Traceback" not in r.output

@@ -924,3 +924,9 @@ def run_design(design: Design, out_dir: Path, verify_runs: bool = True,
     atomic_write(out_dir / "design.html", lambda p: p.write_text(page))
     files += [str(out_dir / "design.json"), str(out_dir / "design.html")]
     return DesignResult(c, front, chosen, reason, verified, tuple(files))
+
+
+def is_design_file(data: object) -> bool:
+    """Whether a parsed YAML document is a design file (it has ``base`` and
+    ``requirements``): ``imc check`` on a folder leaves it out, as it leaves out sweeps."""
+    return isinstance(data, dict) and "requirements" in data and "base" in data

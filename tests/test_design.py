@@ -403,3 +403,21 @@ def test_a_scanning_candidate_without_block_overlap_is_infeasible():
     assert c.limiting[slow].startswith("frame overlap")
     assert c.extras["blocks_overlapping"][slow] == 0
     assert c.feasible[fast] and c.extras["blocks_overlapping"][fast] == 1
+
+
+def test_the_records_interpolation_floor_grows_with_the_jitters_frequency():
+    """A perfect 50 Hz record of a 1 px sinusoid, interpolated as the product does: below
+    1e-4 px at 0.65 Hz (no_stage's wobble), above 0.05 px at 20 Hz (2.5 samples a period),
+    rising in between (what bounds ground correction without a stage)."""
+    from imc.workflow.predict import Disturbance, record_floor_px
+
+    lines = np.arange(6000) / 8000.0 + 0.05
+    floors = []
+    for f in (0.65, 5.0, 10.0, 20.0):
+        d = Disturbance(np.array([1]), np.array([f]), np.array([1.0]), np.array([0.3]),
+                        np.geomspace(1e-3, 1e3, 1), np.zeros((1, 2)))
+        after, _ = record_floor_px(d, 50.0, 2e-4, 0.9, lines, 32 / 8000.0)
+        assert after[0] == 0.0  # the row axis has no jitter
+        floors.append(after[1])
+    assert floors[0] < 1e-4 and floors[-1] > 0.05
+    assert np.all(np.diff(floors) > 0)

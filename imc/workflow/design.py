@@ -792,6 +792,82 @@ def sensitivity(c: Candidates, i: int) -> dict[str, list[dict]]:
     return out
 
 
+def correction_limit(design: Design, c: Candidates, n_freqs: int = 48) -> dict | None:
+    """Up to which jitter frequency ground correction suffices without a stage: the
+    cheapest feasible candidate with no stage and ground correction, its jitter's sinusoids
+    (the base's amplitudes, axes and phases) moved together to each frequency from the
+    base's to half the frame rate (log spaced), re-predicted: the geometry after correction
+    adds the perfect record's interpolation floor (:func:`imc.workflow.predict.
+    record_floor_px`) to the record's network error in quadrature; the residual RMS and the
+    worst exposure's motion MTF are the open loop's at that frequency (a TDI line's blur,
+    which no ground correction removes). Returns the highest frequency (Hz) below which
+    every requirement so predicted holds, the requirement that fails above it, and the
+    table; None when no such candidate is feasible or the base has no sinusoid. Lock time
+    and NIIRS loss are not re-predicted (listed under ``not_repredicted``)."""
+    import dataclasses
+
+    from imc.wiring.build import build_models
+    from imc.wiring.product import plan_product
+    from imc.workflow.predict import predict_model, record_floor_px, tracker_exposure_s
+
+    base, cfg = design.base, design.config
+    dist = Disturbance.from_scenario(base)
+    keep = np.flatnonzero(c.feasible & (c.columns["stage"] == "none")
+                          & (c.columns["ground"] == "correction"))
+    if not keep.size or not len(dist.sin_f_hz):
+        return None
+    i = int(keep[np.lexsort((-c.worst[keep], c.cost[keep]))[0]])
+    r = c.row(i)
+    rate = float(r["frame_rate_hz"])
+    exposure = tracker_exposure_s(base, rate)
+    plan = plan_product(build_models(base, light=True))
+    f0 = float(dist.sin_f_hz.max())
+    freqs = np.geomspace(f0, 0.5 * rate, n_freqs)
+    sigma = float(c.extras["sigma_px"][i])
+    table, f_max, why = [], f0, None
+    for f in freqs:
+        dist_f = dataclasses.replace(dist, sin_f_hz=dist.sin_f_hz * (f / f0))
+        floor_c, floor_a = record_floor_px(dist_f, rate, exposure, base.duration_s,
+                                           plan.line_t_s, plan.integration_s)
+        p = predict_model(None, base, dist_f, exposure, lock=False)
+        rms, total, mtf, _ = residual_figures(
+            np.array(p.rms_det_px), np.array(p.var_rnd_px2), np.array(p.noise_gain), sigma,
+            np.array(p.mtf_det_worst), np.array(p.var_rnd_blur_px2),
+            np.array(p.noise_gain_blur))
+        c_u, a_u = (float(c.predicted[q][i]) if q in c.predicted else 0.0 for q in (
+            "product.geometry.open.after.rms_px", "product.geometry.open.affine.rms_px"))
+        values = {"with_compensation.rms_px": rms, "with_compensation.rms_px.0": rms[0],
+                  "with_compensation.rms_px.1": rms[1],
+                  "with_compensation.rms_total_px": total,
+                  "with_compensation.mtf_nyquist_worst": mtf,
+                  "with_compensation.mtf_nyquist_worst.0": mtf[0],
+                  "with_compensation.mtf_nyquist_worst.1": mtf[1],
+                  "product.geometry.open.after.rms_px": np.hypot(c_u, floor_c),
+                  "product.geometry.open.affine.rms_px": np.hypot(a_u, floor_a)}
+        margins = {q: float(np.min(margin_of(q, b, np.atleast_1d(values[q]))))
+                   for q, b in cfg.requirements.items() if q in values}
+        worst_q = min(margins, key=margins.get) if margins else None
+        table.append({"f_hz": float(f), "geometry_after_px": float(values[
+            "product.geometry.open.after.rms_px"].max()), "geometry_affine_px": float(
+            values["product.geometry.open.affine.rms_px"].max()),
+            "mtf_nyquist_worst": float(mtf.min()), "worst_margin": margins.get(worst_q),
+            "limiting": worst_q})
+        if worst_q is not None and margins[worst_q] < 0.0:
+            why = worst_q
+            break
+        f_max = float(f)
+    return {"design": describe(r), "index": i, "frame_rate_hz": rate,
+            "sinusoids": [{"axis": ("row", "col")[int(k)], "f_hz": float(f),
+                           "amplitude_px": float(a)} for k, f, a in
+                          zip(dist.sin_axis, dist.sin_f_hz, dist.sin_a_px, strict=True)],
+            "base_f_hz": f0, "f_max_hz": f_max,
+            "limited_by": why or "none up to half the frame rate",
+            "not_repredicted": [q for q in cfg.requirements if q not in (
+                "product.geometry.open.after.rms_px", "product.geometry.open.affine.rms_px")
+                and not q.startswith("with_compensation.")],
+            "table": table}
+
+
 def design_json(design: Design, c: Candidates, front: np.ndarray, chosen: int | None,
                 reason: str, verified: list[dict], crlb_px: float) -> dict:
     """The design's record (design.json)."""
@@ -946,6 +1022,12 @@ def run_design(design: Design, out_dir: Path, verify_runs: bool = True,
                 f"({design.config.verify.fidelity} plant)")
             verified = verify(design, c, picks, out_dir, log)
     record = design_json(design, c, front, chosen, reason, verified, crlb)
+    limit = correction_limit(design, c)
+    record["ground_correction_limit"] = limit
+    if limit is not None:
+        log(f"ground correction without a stage ({limit['design']}) meets the requirements "
+            f"up to {limit['f_max_hz']:.3g} Hz of jitter at the base's amplitude (above: "
+            f"{limit['limited_by']})")
     write_json(out_dir / "design.json", record)
     page = design_html(record, c, front, chosen)
     atomic_write(out_dir / "design.html", lambda p: p.write_text(page))

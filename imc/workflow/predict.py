@@ -479,6 +479,33 @@ def sinusoid_residual(model, dist: Disturbance, duration_s: float, t_s: np.ndarr
     return d_t - d0 - h @ u
 
 
+def record_floor_px(dist: Disturbance, rate_hz: float, exposure_s: float,
+                    duration_s: float, line_t_s: np.ndarray, integration_s: float
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """The geometry (after a constant, after an affine) (2,) px per axis that ground
+    correction leaves from a perfect record of the sinusoids of ``dist``: the tracker's
+    frames at ``rate_hz`` over ``duration_s`` measure each exposure's mean (``exposure_s``,
+    sampled at its middle), the ground interpolates them as the product does
+    (:func:`ground.record.line_motion` with :data:`imc.wiring.product.RECORD_METHOD`) over
+    each line's integration (lines from ``line_t_s``, ``integration_s``), against the lines'
+    true exposure means (:func:`ground.network.geometry_rms`). What the record's network
+    covariance (:func:`record_geometry_unit`) does not hold: the jitter between its
+    samples, which grows with the jitter's frequency against the frame rate."""
+    from ground.network import geometry_rms
+    from ground.record import MotionRecord, line_motion
+    from imc.wiring.product import RECORD_METHOD
+
+    t0 = np.arange(int(np.floor(duration_s * rate_hz - 1e-9)) + 1) / rate_hz
+    t0 = t0[t0 + exposure_s <= duration_s + 1e-9]
+    rec = MotionRecord(t0 + 0.5 * exposure_s, _exposure_means(dist, t0, exposure_s),
+                       np.ones(len(t0), bool))
+    line_t = np.asarray(line_t_s, float)
+    err = line_motion(rec, line_t, integration_s, RECORD_METHOD) \
+        - _exposure_means(dist, line_t, integration_s)
+    g = geometry_rms(err, line_t)
+    return np.asarray(g["constant"]), np.asarray(g["affine"])
+
+
 @lru_cache(maxsize=64)
 def record_geometry_unit(rate_hz: float, duration_s: float, baselines: int = 1,
                          max_frames: int = 1500) -> tuple[float, float]:

@@ -655,15 +655,17 @@ def tracker_bounds(m, sizes, fidelity: str = "texture", n_blocks: int | None = N
 def block_valid_probability(valid: np.ndarray, psr: np.ndarray, psr_threshold: float
                             ) -> float:
     """The probability that a block of the scene is valid, from a sample of blocks the
-    correlator measured (``valid`` (n,), their PSR ``psr`` (n,)): one less the larger of
-    the refused fraction and the chance that a block's PSR falls below the correlator's
-    threshold (``psr_threshold``; the sample's PSRs taken as log-normal), so a sample with
-    none refused still gives the blocks near the threshold their odds. In a scan every frame
-    brings new ground under each block, so this is the odds of each block in each frame."""
+    correlator measured (``valid`` (n,), their PSR ``psr`` (n,)): one less the largest of
+    the refused fraction's Jeffreys estimate ((refused + 0.5) / (n + 1): a sample of n with
+    none refused does not certify odds below ~1/(2n); the smallsat's 1 x 48 px chain lost
+    2 of 139 frames at PSR 7.8 and 12.1 where 25 of 25 static blocks were valid) and the
+    chance that a block's PSR falls below the correlator's threshold (``psr_threshold``;
+    the sample's PSRs taken as log-normal). In a scan every frame brings new ground under
+    each block, so this is the odds of each block in each frame."""
     from scipy.stats import norm
 
     valid = np.asarray(valid, bool)
-    p_refused = 1.0 - float(valid.mean()) if valid.size else 1.0
+    p_refused = (float((~valid).sum()) + 0.5) / (valid.size + 1.0)
     z = np.log(np.asarray(psr, float)[np.asarray(psr, float) > 0])
     if z.size >= 3 and np.std(z) > 0:
         p_refused = max(p_refused, float(norm.cdf((np.log(psr_threshold) - z.mean())

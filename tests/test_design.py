@@ -357,3 +357,67 @@ def test_a_niirs_requirement_is_predicted_and_measured_on_the_right_product():
     assert m_none["product"]["enabled"] and m_none["product"]["render"]
     assert list(m_none["expect"]) == ["product.quality.open.niirs_loss"]
     assert list(m_stage["expect"]) == ["product.quality.closed.niirs_loss"]
+
+
+def _scan_base() -> dict:
+    """no_stage.yaml's pushbroom (681 km, ~8,300 px/s of image flow along the rows) on a
+    128 px tracker, 0.3 s, analytic plant."""
+    d = yaml.safe_load((ROOT / "scenarios" / "no_stage.yaml").read_text())
+    d["duration_s"] = 0.3
+    d["scene"]["size_m"] = 2592
+    d["camera"]["tracker"].update(rows=128, cols=128)
+    d["correlator"].update(block_px=32, n_blocks=1)
+    d["product"]["lines"] = 1024
+    d["plant"] = {"fidelity": "analytic"}
+    d.pop("expect")
+    return d
+
+
+def test_the_chain_overlap_is_the_trackers_own_block_placement():
+    """The issue's failed run (50 Hz, 4 x 32 px on 256 px, 166 px of flow per frame): its
+    lower two blocks never overlapped the next frame; at 200 Hz (41 px) all four do."""
+    from imc.workflow.predict import chain_break_probability, chain_overlap
+
+    assert chain_overlap(256, 256, 32, 4, np.array([166.0, 0.0])) == 2
+    assert chain_overlap(256, 256, 32, 4, np.array([41.5, 0.0])) == 4
+    assert chain_overlap(256, 256, 32, 1, np.array([300.0, 0.0])) == 0
+    # two of four overlap, half must be valid: both, at 92 % each
+    p = chain_break_probability(np.array([2, 4]), np.array([4, 4]), np.array([0.92, 0.92]),
+                                0.5)
+    assert p[0] == pytest.approx(1 - 0.92**2) and p[1] < 0.01
+
+
+def test_a_scanning_candidate_without_block_overlap_is_infeasible():
+    """25 Hz leaves 330 px of flow per frame on a 128 px tracker: no block's content reaches
+    the next frame, named as the limit; 400 Hz (21 px per frame) overlaps and is feasible."""
+    d = parse_design({"name": "scan", "base": _scan_base(), "tracker_crlb_px": 0.02,
+                      "requirements": {"product.geometry.open.after.rms_px": {"max": 0.1}},
+                      "free": {"frame_rate_hz": [25, 400], "block_px": [32],
+                               "n_blocks": [1], "stage": ["none"],
+                               "ground": ["correction"]},
+                      "verify": {"designs": 0, "fidelity": "analytic"}})
+    c = evaluate(d)
+    rate = c.columns["frame_rate_hz"]
+    slow, fast = int(np.flatnonzero(rate == 25)[0]), int(np.flatnonzero(rate == 400)[0])
+    assert not c.feasible[slow]
+    assert c.limiting[slow].startswith("frame overlap")
+    assert c.extras["blocks_overlapping"][slow] == 0
+    assert c.feasible[fast] and c.extras["blocks_overlapping"][fast] == 1
+
+
+def test_the_records_interpolation_floor_grows_with_the_jitters_frequency():
+    """A perfect 50 Hz record of a 1 px sinusoid, interpolated as the product does: below
+    1e-4 px at 0.65 Hz (no_stage's wobble), above 0.05 px at 20 Hz (2.5 samples a period),
+    rising in between (what bounds ground correction without a stage)."""
+    from imc.workflow.predict import Disturbance, record_floor_px
+
+    lines = np.arange(6000) / 8000.0 + 0.05
+    floors = []
+    for f in (0.65, 5.0, 10.0, 20.0):
+        d = Disturbance(np.array([1]), np.array([f]), np.array([1.0]), np.array([0.3]),
+                        np.geomspace(1e-3, 1e3, 1), np.zeros((1, 2)))
+        after, _ = record_floor_px(d, 50.0, 2e-4, 0.9, lines, 32 / 8000.0)
+        assert after[0] == 0.0  # the row axis has no jitter
+        floors.append(after[1])
+    assert floors[0] < 1e-4 and floors[-1] > 0.05
+    assert np.all(np.diff(floors) > 0)

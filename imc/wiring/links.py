@@ -110,6 +110,25 @@ def _loop_blocks(m: Models, rec, stage_mean: np.ndarray):
     return a[keep], ks[keep], d[keep], rec.sigma_px[ks][keep], valid[keep]
 
 
+def chain_corners(corners: np.ndarray, step_px: np.ndarray, block_px: int,
+                  shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The loop's chain cut of a scanning tracker (each frame measured against the one
+    before, :class:`imc.wiring.rendered_plant.TrackerPlant`): each block of the grid
+    ``corners`` (B, 2) is cut in the reference frame half the predicted motion ``step_px``
+    (B, 2) px before its place, clipped to the sensor (``shape``: rows, cols), and in the
+    current frame at that corner moved by the rounded motion. Returns the reference corners
+    (B, 2), the current ones (B, 2) and whether the current block lies whole on the sensor
+    (B,): one that does not is refused (:meth:`correlator.tracker.BlockTracker.update`), so
+    a block's content is either all in common with the next frame or not measured."""
+    step = np.asarray(step_px, dtype=np.float64)
+    lim = np.asarray(shape, dtype=int) - int(block_px)
+    half = np.rint(step / 2.0).astype(int)
+    ref = np.clip(np.asarray(corners, dtype=int) - half, 0, lim)
+    cur = ref + np.rint(step).astype(int)
+    inside = np.all((cur >= 0) & (cur <= lim), axis=1)
+    return ref, cur, inside
+
+
 def pair_corners(corners: np.ndarray, step_px: np.ndarray, block_px: int, lim: np.ndarray,
                  margin: int = OVERLAP_MARGIN_PX) -> tuple[np.ndarray, np.ndarray]:
     """Reference corners (B, 2) of a pair whose content moves by ``step_px`` (B, 2) px: the

@@ -19,7 +19,7 @@ from compensation.blocks import BlockMeasurements
 from correlator.tracker import BlockTracker, extract_blocks
 from imc.wiring import streams
 from imc.wiring.build import Models, frame_seeds, predicted_px
-from imc.wiring.links import pair_corners
+from imc.wiring.links import chain_corners, pair_corners
 
 #: a block's predicted deformation (px across it) beyond which the tracker resamples the
 #: current frame through it (long stares), instead of cutting a plain block
@@ -91,11 +91,10 @@ class TrackerPlant:
                                      np.zeros((nb, 2)), np.zeros(2))
         ref = self.ref
         if m.chain:
-            half = np.rint(predicted_px(m, self.grid_centers, ref, k, self.stage_mean[ref],
-                                        self.stage_mean[k]) / 2.0)
+            step = predicted_px(m, self.grid_centers, ref, k, self.stage_mean[ref],
+                                self.stage_mean[k])
             fp = m.camera.focal_plane
-            lim = np.array([fp.rows - b, fp.cols - b])
-            self.ref_corners = np.clip(m.corners - half.astype(int), 0, lim)
+            self.ref_corners = chain_corners(m.corners, step, b, (fp.rows, fp.cols))[0]
             self.tracker = BlockTracker(self.frames[ref], self.ref_corners, b, m.correlator)
         elif self.tracker is None:  # resumed after a re-reference
             self.tracker = BlockTracker(self.frames[ref], self.ref_corners, b, m.correlator)
@@ -319,11 +318,11 @@ def base_image(m: Models, margin_px) -> np.ndarray:
 
 
 def predicted_sigma_px(m: Models, fill: bool = True,
-                       radiance: np.ndarray | None = None) -> np.ndarray:
+                       radiance: np.ndarray | None = None, with_psr: bool = False):
     """The correlator's predicted 1-sigma error (B, 2) px on this scene: frame 0's content
     (flat shading; or ``radiance``, e.g. a rendered frame 0) exposed twice with independent
     noise, block against block; a block the correlator refuses gets the others' median
-    (``fill``) or NaN."""
+    (``fill``) or NaN. ``with_psr``: also each block's PSR (B,) (``fill`` False only)."""
     rad = base_image(m, 0) if radiance is None else radiance
     gain = m.sensor.gain_for(m.optics.apply(rad))
     a = expose_frame(m, rad, gain, streams.rng(m.scenario.seed, "texture", 0))
@@ -333,7 +332,7 @@ def predicted_sigma_px(m: Models, fill: bool = True,
     res = tracker.correlator.measure(extract_blocks(b, m.corners, bp))
     crlb = np.where(res.valid[:, None], res.crlb, np.nan)
     if not fill:
-        return crlb
+        return (crlb, np.asarray(res.peak, float)) if with_psr else crlb
     if not np.isfinite(crlb).any():
         return np.full((len(m.corners), 2), 0.05)
     return np.where(np.isfinite(crlb), crlb, np.nanmedian(crlb))

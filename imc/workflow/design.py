@@ -45,8 +45,12 @@ from imc.workflow.predict import (
     LoopChoice,
     NiirsInputs,
     actuator_block,
+    chain_break_probability,
+    chain_overlap,
     controller_block,
     correlator_efficiency,
+    image_flow_px_per_s,
+    min_valid_fraction,
     nominal_line_rate_hz,
     predict_loops,
     product_span_s,
@@ -61,6 +65,13 @@ from imc.workflow.predict import (
 MAX_VERIFY = 3
 #: the default predicted margin a chosen design keeps (the 25 % target of the predictors)
 DEFAULT_MARGIN = 0.25
+#: the most frames of a run, expected, where a scanning tracker's chain breaks (too few
+#: blocks valid to re-reference) or a fixed reference's frame has no valid block
+MAX_EXPECTED_BREAKS = 0.1
+#: the checks besides the requirements, as a candidate's limiting reason names them
+CHECKS = ("loop stability", "block grid",
+          "frame overlap (too few blocks' content reaches the next frame)",
+          "blocks valid per frame (the tracker's chain or record breaks)", "stage stroke")
 
 
 class _Model(BaseModel):
@@ -388,24 +399,46 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
     # the tracker: bound x efficiency x (b0 / b) / sqrt(n); radiometric signal: shot noise
     # with exposure
     efficiency = correlator_efficiency(cfg.verify.fidelity, base.scene.kind)
-    if crlb is None:  # each block size's own bound on the base scene (its models built once)
-        from imc.wiring.build import build_models
+    from imc.wiring.build import build_models
 
+    if crlb is None:  # each block size's own bound on the base scene (its models built once)
         m = build_models(base)
         eff = efficiency.at(tracker_snr(m))
         table = tracker_bounds(m, free.block_px, cfg.verify.fidelity)
         per_block = np.array([table[int(x)][0] for x in b])
         p_kept = np.array([table[int(x)][1] for x in b])
     else:  # a given bound at the base's block size, as one over the block's side
-        eff = efficiency.at(base_tracker_snr(design))
+        m = build_models(base, light=True)
+        eff = efficiency.at(tracker_snr(m))
         per_block = crlb * (b0 / b)
         p_kept = np.ones(len(b))
-    # the record's network needs a link in every frame: the expected number of frames in
-    # the product's span whose every block is refused stays below 0.1 (ground correction)
-    n_frames = rate * product_span_s(base)
-    untied = np.where(ground == "correction", (1.0 - p_kept) ** nb * n_frames, 0.0)
-    kept_ok = np.isfinite(per_block) & (untied <= 0.1)
-    sigma = np.where(kept_ok, per_block, np.nan) * eff / np.sqrt(nb)
+    rows, cols_px = base.camera.tracker.rows, base.camera.tracker.cols
+    grid_ok = nb <= np.floor(rows / b) * np.floor(cols_px / b)
+    if m.chain:  # a scanning tracker: each frame against the one before (the loop's chain)
+        # the blocks whose content reaches the next frame, placed and cut as the tracker
+        # does; the chain holds while the estimator finds enough of them valid in every
+        # frame: the expected number of frames of the run where it breaks stays below
+        # MAX_EXPECTED_BREAKS (it does not recover: the old reference's content leaves)
+        flow = image_flow_px_per_s(m)
+        n_eff = np.zeros(len(b))
+        for r_hz, b_px, n_b in set(zip(rate.tolist(), b.tolist(), nb.tolist(), strict=True)):
+            sel = (rate == r_hz) & (b == b_px) & (nb == n_b)
+            n_eff[sel] = chain_overlap(rows, cols_px, int(b_px), int(n_b), flow / r_hz) \
+                if grid_ok[sel][0] else 0
+        p_break = chain_break_probability(n_eff, nb, p_kept, min_valid_fraction(base))
+        overlap_ok = p_break < 1.0
+        breaks = p_break * rate * base.duration_s
+    else:  # a fixed reference: the record's network needs a valid block in every frame of
+        # the product's span (ground correction)
+        n_eff = nb.copy()
+        overlap_ok = np.ones(len(b), bool)
+        breaks = np.where(ground == "correction",
+                          (1.0 - p_kept) ** nb * rate * product_span_s(base), 0.0)
+    kept_ok = np.isfinite(per_block) & (breaks <= MAX_EXPECTED_BREAKS)
+    # the motion-field fit averages the blocks that overlap (each valid with p_kept: the
+    # per-block bound carries it)
+    sigma = np.where(kept_ok & overlap_ok, per_block, np.nan) * eff \
+        / np.sqrt(np.maximum(n_eff, 1.0))
     if radiometric:
         sigma = sigma * np.sqrt(rate / rate0)
     rms, total, mtf, blur = residual_figures(det, var_rnd, gain, sigma, mtf_det, var_rnd_blur,
@@ -456,24 +489,17 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
         predicted[path] = v
         margins.append(m)
     marg = np.stack(margins, 1)
-    names = np.array([p for p, _ in reqs] + ["loop stability",
-                                             "block grid / frame overlap / blocks kept",
-                                          "stage stroke"],
-                     object)
-    rows, cols_px = base.camera.tracker.rows, base.camera.tracker.cols
-    grid_ok = (nb <= np.floor(rows / b) * np.floor(cols_px / b)) & kept_ok
+    names = np.array(list(CHECKS) + [p for p, _ in reqs], object)
     # the stroke spans -stroke / 2 .. stroke / 2 about frame 0's position; 10 % to spare
     peak = dist.open_peak_px(base.duration_s, 0.5 / rate0).max()
     stroke_ok = (stage != "piezo") | (stroke >= 2.2 * peak)
-    if base.attitude.mode != "target":  # a scanning tracker chains frames: they must overlap
-        flow = nominal_line_rate_hz(base) / rate  # px per frame along the rows
-        grid_ok &= flow + b <= rows
-    extra = np.stack([np.where(ok, np.inf, -np.inf), np.where(grid_ok, np.inf, -np.inf),
-                      np.where(stroke_ok, np.inf, -np.inf)], 1)
-    allm = np.concatenate([marg, extra], 1)
+    passes = [ok, grid_ok, grid_ok & overlap_ok, grid_ok & overlap_ok & kept_ok, stroke_ok]
+    extra = np.stack([np.where(x, np.inf, -np.inf) for x in passes], 1)
+    # a failed check limits before a requirement (whose value it may leave undefined)
+    allm = np.concatenate([extra, marg], 1)
     k = np.argmin(allm, axis=1)
     worst = marg.min(axis=1)
-    checks = ok & grid_ok & stroke_ok
+    checks = np.logical_and.reduce(passes)
     worst = np.where(checks, worst, -np.inf)
     feasible = checks & (marg.min(axis=1) >= 0.0)
     # cost
@@ -490,7 +516,8 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
                "ground": ground}
     return Candidates(columns, predicted, marg, feasible, names[k], worst, cost,
                       time.perf_counter() - t0, len(loops), loop_s,
-                      {"sigma_px": sigma})
+                      {"sigma_px": sigma, "blocks_overlapping": n_eff,
+                       "block_valid_probability": p_kept, "expected_breaks": breaks})
 
 
 def niirs_losses(base: Scenario, preds: list, li: np.ndarray, ok: np.ndarray,
@@ -765,6 +792,82 @@ def sensitivity(c: Candidates, i: int) -> dict[str, list[dict]]:
     return out
 
 
+def correction_limit(design: Design, c: Candidates, n_freqs: int = 48) -> dict | None:
+    """Up to which jitter frequency ground correction suffices without a stage: the
+    cheapest feasible candidate with no stage and ground correction, its jitter's sinusoids
+    (the base's amplitudes, axes and phases) moved together to each frequency from the
+    base's to half the frame rate (log spaced), re-predicted: the geometry after correction
+    adds the perfect record's interpolation floor (:func:`imc.workflow.predict.
+    record_floor_px`) to the record's network error in quadrature; the residual RMS and the
+    worst exposure's motion MTF are the open loop's at that frequency (a TDI line's blur,
+    which no ground correction removes). Returns the highest frequency (Hz) below which
+    every requirement so predicted holds, the requirement that fails above it, and the
+    table; None when no such candidate is feasible or the base has no sinusoid. Lock time
+    and NIIRS loss are not re-predicted (listed under ``not_repredicted``)."""
+    import dataclasses
+
+    from imc.wiring.build import build_models
+    from imc.wiring.product import plan_product
+    from imc.workflow.predict import predict_model, record_floor_px, tracker_exposure_s
+
+    base, cfg = design.base, design.config
+    dist = Disturbance.from_scenario(base)
+    keep = np.flatnonzero(c.feasible & (c.columns["stage"] == "none")
+                          & (c.columns["ground"] == "correction"))
+    if not keep.size or not len(dist.sin_f_hz):
+        return None
+    i = int(keep[np.lexsort((-c.worst[keep], c.cost[keep]))[0]])
+    r = c.row(i)
+    rate = float(r["frame_rate_hz"])
+    exposure = tracker_exposure_s(base, rate)
+    plan = plan_product(build_models(base, light=True))
+    f0 = float(dist.sin_f_hz.max())
+    freqs = np.geomspace(f0, 0.5 * rate, n_freqs)
+    sigma = float(c.extras["sigma_px"][i])
+    table, f_max, why = [], f0, None
+    for f in freqs:
+        dist_f = dataclasses.replace(dist, sin_f_hz=dist.sin_f_hz * (f / f0))
+        floor_c, floor_a = record_floor_px(dist_f, rate, exposure, base.duration_s,
+                                           plan.line_t_s, plan.integration_s)
+        p = predict_model(None, base, dist_f, exposure, lock=False)
+        rms, total, mtf, _ = residual_figures(
+            np.array(p.rms_det_px), np.array(p.var_rnd_px2), np.array(p.noise_gain), sigma,
+            np.array(p.mtf_det_worst), np.array(p.var_rnd_blur_px2),
+            np.array(p.noise_gain_blur))
+        c_u, a_u = (float(c.predicted[q][i]) if q in c.predicted else 0.0 for q in (
+            "product.geometry.open.after.rms_px", "product.geometry.open.affine.rms_px"))
+        values = {"with_compensation.rms_px": rms, "with_compensation.rms_px.0": rms[0],
+                  "with_compensation.rms_px.1": rms[1],
+                  "with_compensation.rms_total_px": total,
+                  "with_compensation.mtf_nyquist_worst": mtf,
+                  "with_compensation.mtf_nyquist_worst.0": mtf[0],
+                  "with_compensation.mtf_nyquist_worst.1": mtf[1],
+                  "product.geometry.open.after.rms_px": np.hypot(c_u, floor_c),
+                  "product.geometry.open.affine.rms_px": np.hypot(a_u, floor_a)}
+        margins = {q: float(np.min(margin_of(q, b, np.atleast_1d(values[q]))))
+                   for q, b in cfg.requirements.items() if q in values}
+        worst_q = min(margins, key=margins.get) if margins else None
+        table.append({"f_hz": float(f), "geometry_after_px": float(values[
+            "product.geometry.open.after.rms_px"].max()), "geometry_affine_px": float(
+            values["product.geometry.open.affine.rms_px"].max()),
+            "mtf_nyquist_worst": float(mtf.min()), "worst_margin": margins.get(worst_q),
+            "limiting": worst_q})
+        if worst_q is not None and margins[worst_q] < 0.0:
+            why = worst_q
+            break
+        f_max = float(f)
+    return {"design": describe(r), "index": i, "frame_rate_hz": rate,
+            "sinusoids": [{"axis": ("row", "col")[int(k)], "f_hz": float(f),
+                           "amplitude_px": float(a)} for k, f, a in
+                          zip(dist.sin_axis, dist.sin_f_hz, dist.sin_a_px, strict=True)],
+            "base_f_hz": f0, "f_max_hz": f_max,
+            "limited_by": why or "none up to half the frame rate",
+            "not_repredicted": [q for q in cfg.requirements if q not in (
+                "product.geometry.open.after.rms_px", "product.geometry.open.affine.rms_px")
+                and not q.startswith("with_compensation.")],
+            "table": table}
+
+
 def design_json(design: Design, c: Candidates, front: np.ndarray, chosen: int | None,
                 reason: str, verified: list[dict], crlb_px: float) -> dict:
     """The design's record (design.json)."""
@@ -919,6 +1022,12 @@ def run_design(design: Design, out_dir: Path, verify_runs: bool = True,
                 f"({design.config.verify.fidelity} plant)")
             verified = verify(design, c, picks, out_dir, log)
     record = design_json(design, c, front, chosen, reason, verified, crlb)
+    limit = correction_limit(design, c)
+    record["ground_correction_limit"] = limit
+    if limit is not None:
+        log(f"ground correction without a stage ({limit['design']}) meets the requirements "
+            f"up to {limit['f_max_hz']:.3g} Hz of jitter at the base's amplitude (above: "
+            f"{limit['limited_by']})")
     write_json(out_dir / "design.json", record)
     page = design_html(record, c, front, chosen)
     atomic_write(out_dir / "design.html", lambda p: p.write_text(page))

@@ -606,6 +606,9 @@ def sweep(
     memory_limit: str = typer.Option("auto", "--memory-limit", help=_MEMORY_HELP),
     retry_failed: bool = typer.Option(False, "--retry-failed", help="run failed points "
                                       "again"),
+    fresh: bool = typer.Option(False, "--fresh", help="run every point again, each earlier "
+                               "result replaced as its point finishes (after a code change: "
+                               "a point is known by its scenario, not by the code)"),
     no_report: bool = typer.Option(False, "--no-report", help="skip report.html"),
     force: bool = typer.Option(False, "--force", help="run points above the memory budget "
                                "or the frame limit, or more points than the sweep limit"),
@@ -650,11 +653,14 @@ def sweep(
                     prog.update(task, completed=done - started[0])
 
                 summary = run_sweep(sw, out_dir, run_on, progress=progress,
-                                    retry_failed=retry_failed)
+                                    retry_failed=retry_failed, fresh=fresh)
     except SchedulerError as e:
         _fail(str(e))
     out.print(f"{summary.ran} points run, {summary.skipped} already done, {summary.failed} "
               f"failed, {len(summary.lost)} lost (rerun to retry) in {summary.wall_s:.1f} s")
+    if summary.skipped:
+        out.print(f"{summary.skipped} points kept from {out_dir}/points/ (whatever code "
+                  "wrote them): --fresh runs them again")
     for line in summary.errors[:10]:
         err.print(f"[yellow]failed:[/] {line}", highlight=False, soft_wrap=True)
     for line in summary.lost[:10]:

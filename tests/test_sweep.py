@@ -194,3 +194,22 @@ def test_cli_zip_sweep_writes_results_and_report_and_resumes(tmp_path):
     assert (out / "report.html").exists() and (out / "figures").is_dir()
     r = cli.invoke(app, ["sweep", str(p), "--out", str(out), "--workers", "0", "--no-report"])
     assert r.exit_code == 0 and "0 points run, 2 already done" in " ".join(r.output.split())
+
+
+def test_fresh_runs_every_point_again_and_replaces_each_result(tiny_run, tmp_path):
+    """A point is known by its scenario, not by the code that ran it: after a code change
+    `--fresh` runs all of them again, each earlier result replaced as its point finishes."""
+    sw, out, _ = tiny_run
+    import shutil
+
+    again = tmp_path / "again"
+    shutil.copytree(out, again)
+    stale = again / "points" / f"{sw.points[3].digest}.json"
+    rec = json.loads(stale.read_text())
+    rec["metrics"]["with_compensation"]["rms_total_px"] = -1.0  # as if older code wrote it
+    stale.write_text(json.dumps(rec))
+    with runner(0) as r:
+        assert run_sweep(sw, again, r).ran == 0  # kept as it is
+        summary = run_sweep(sw, again, r, fresh=True)
+    assert summary.skipped == 0 and summary.ran == len({p.digest for p in sw.points})
+    assert json.loads(stale.read_text())["metrics"]["with_compensation"]["rms_total_px"] > 0

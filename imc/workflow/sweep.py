@@ -364,9 +364,11 @@ def write_manifest(sweep: Sweep, out_dir: Path) -> None:
 
 
 def run_sweep(sweep: Sweep, out_dir: Path, runner: Runner, progress: ProgressFn | None = None,
-              retry_failed: bool = False) -> SweepSummary:
-    """Run the points not finished in ``out_dir`` (all of them with ``retry_failed`` for the
-    failed ones too), writing each as it finishes; then the results tables."""
+              retry_failed: bool = False, fresh: bool = False) -> SweepSummary:
+    """Run the points not finished in ``out_dir`` (the failed ones too with
+    ``retry_failed``; every point with ``fresh``: a point's digest is its scenario, not the
+    code that ran it, so after a code change its earlier result would be kept), writing each
+    as it finishes (an earlier result is replaced only then); then the results tables."""
     t0 = time.perf_counter()
     out_dir = Path(out_dir)
     (out_dir / "points").mkdir(parents=True, exist_ok=True)
@@ -377,7 +379,7 @@ def run_sweep(sweep: Sweep, out_dir: Path, runner: Runner, progress: ProgressFn 
         if p.digest in todo:
             continue
         rec = read_point(out_dir, p.digest)
-        if rec is not None and (rec.get("status") == "ok" or not retry_failed):
+        if not fresh and rec is not None and (rec.get("status") == "ok" or not retry_failed):
             continue
         todo[p.digest] = p
     summary.skipped = summary.total - len(todo)

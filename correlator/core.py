@@ -888,11 +888,7 @@ class Correlator:
         (rows unique) the reference's spectrum under cur's window too (it does not depend on
         the margins)."""
         lay = self._lay
-        h, w = self.shape
-        wy = _pass_windows(h, lay.taper[0], mg[:, 0, 0], mg[:, 0, 1])
-        wx = _pass_windows(w, lay.taper[1], mg[:, 1, 0], mg[:, 1, 1])
-        ref_w, _ = self._prep(self._ref_in, rows, wy, wx)
-        spec = fftbackend.rfft2(ref_w)
+        spec, wy, wx = self._windowed_reference(rows, mg)
         wc, fw, _, mm, noise = self._ref_terms(spec, _energy(wy, wx))
         if cache:
             todo = rows[~self._refc_ready[rows]]
@@ -1045,16 +1041,21 @@ class Correlator:
         y, _, floor = self._cross(cspec, src, fw, srow)
         return y, floor, m, (bw, srow), (cspec, pbox, s2r, _energy(wy, wx))
 
-    def _pass_reference(self, rows: np.ndarray, mg: np.ndarray):
-        """:meth:`_ref_terms` of reference blocks ``rows`` windowed with zero margins
-        mg (m, 2, 2) (their own Knapp-Carter weights), the box means of their power
-        (m, h, k) and the noise power per bin (m,) of their weights."""
+    def _windowed_reference(self, rows: np.ndarray, mg: np.ndarray):
+        """The spectra (m, h, w//2+1) of reference blocks ``rows`` windowed with zero margins
+        mg (m, 2, 2), and those windows (m, h), (m, w)."""
         lay = self._lay
         h, w = self.shape
         wy = _pass_windows(h, lay.taper[0], mg[:, 0, 0], mg[:, 0, 1])
         wx = _pass_windows(w, lay.taper[1], mg[:, 1, 0], mg[:, 1, 1])
         ref_w, _ = self._prep(self._ref_in, rows, wy, wx)
-        spec = fftbackend.rfft2(ref_w)
+        return fftbackend.rfft2(ref_w), wy, wx
+
+    def _pass_reference(self, rows: np.ndarray, mg: np.ndarray):
+        """:meth:`_ref_terms` of reference blocks ``rows`` windowed with zero margins
+        mg (m, 2, 2) (their own Knapp-Carter weights), the box means of their power
+        (m, h, k) and the noise power per bin (m,) of their weights."""
+        spec, wy, wx = self._windowed_reference(rows, mg)
         pbox = np.empty((len(rows), *spec.shape[1:]), np.float32)
         energy = _energy(wy, wx)
         wc, fw, bw, mm, noise = self._ref_terms(spec, energy, pbox=pbox)

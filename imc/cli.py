@@ -607,8 +607,9 @@ def sweep(
     retry_failed: bool = typer.Option(False, "--retry-failed", help="run failed points "
                                       "again"),
     fresh: bool = typer.Option(False, "--fresh", help="run every point again, each earlier "
-                               "result replaced as its point finishes (after a code change: "
-                               "a point is known by its scenario, not by the code)"),
+                               "result replaced as its point finishes (a point is known by "
+                               "its scenario and the code's source, so a code change already "
+                               "runs it again)"),
     no_report: bool = typer.Option(False, "--no-report", help="skip report.html"),
     force: bool = typer.Option(False, "--force", help="run points above the memory budget "
                                "or the frame limit, or more points than the sweep limit"),
@@ -659,8 +660,8 @@ def sweep(
     out.print(f"{summary.ran} points run, {summary.skipped} already done, {summary.failed} "
               f"failed, {len(summary.lost)} lost (rerun to retry) in {summary.wall_s:.1f} s")
     if summary.skipped:
-        out.print(f"{summary.skipped} points kept from {out_dir}/points/ (whatever code "
-                  "wrote them): --fresh runs them again")
+        out.print(f"{summary.skipped} points kept from {out_dir}/points/ (run by this "
+                  "code): --fresh runs them again")
     for line in summary.errors[:10]:
         err.print(f"[yellow]failed:[/] {line}", highlight=False, soft_wrap=True)
     for line in summary.lost[:10]:

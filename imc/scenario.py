@@ -704,6 +704,30 @@ class CorrelatorConfig(_Model):
         return PipelineTiming(**t.model_dump(exclude={"enabled"}))
 
 
+#: the packages whose source is imcsim's code (pyproject's top-level packages)
+CODE_PACKAGES = ("orbit", "scene", "camera", "correlator", "compensation", "ground", "imc")
+
+
+@lru_cache(maxsize=1)
+def code_digest() -> str:
+    """A hash of imcsim's source (every ``.py`` file of ``CODE_PACKAGES``, by path and content).
+
+    The installed version does not change with each commit of an editable install, so a
+    checkpoint or a sweep's point keyed by the version alone would be resumed by other code;
+    keyed by this it is run again. Read once per process (~10 ms)."""
+    import importlib.util
+
+    h = hashlib.sha256()
+    for name in CODE_PACKAGES:
+        spec = importlib.util.find_spec(name)
+        for root in (spec.submodule_search_locations or []) if spec else []:
+            root = Path(root)
+            for f in sorted(root.rglob("*.py")):
+                h.update(f"{name}/{f.relative_to(root).as_posix()}\0".encode())
+                h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
 @lru_cache(maxsize=1)
 def installed_version() -> str:
     """imcsim's installed version (read once: the metadata lookup costs ~3 ms)."""
@@ -1080,8 +1104,10 @@ class Scenario(_Model):
         return np.datetime64(_epoch_utc(self.orbit.epoch_utc), "ns")
 
     def digest(self) -> str:
-        """Stable hash of the full (defaults filled) scenario and imcsim version, for resuming."""
-        ver = installed_version()
+        """Stable hash of the full (defaults filled) scenario, imcsim's version and its source
+        (`code_digest`), for resuming: a run or a sweep's point is resumed only by the code
+        that started it."""
+        ver = installed_version() + code_digest()
         # expectations judge a run's metrics, they do not change the run
         return hashlib.sha256((ver + self.model_dump_json(exclude={"expect"})).encode()
                               ).hexdigest()[:16]

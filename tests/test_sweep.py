@@ -197,8 +197,8 @@ def test_cli_zip_sweep_writes_results_and_report_and_resumes(tmp_path):
 
 
 def test_fresh_runs_every_point_again_and_replaces_each_result(tiny_run, tmp_path):
-    """A point is known by its scenario, not by the code that ran it: after a code change
-    `--fresh` runs all of them again, each earlier result replaced as its point finishes."""
+    """`--fresh` runs every point again by the same code (a point whose file was edited or
+    written otherwise is kept without it), each earlier result replaced as it finishes."""
     sw, out, _ = tiny_run
     import shutil
 
@@ -206,10 +206,21 @@ def test_fresh_runs_every_point_again_and_replaces_each_result(tiny_run, tmp_pat
     shutil.copytree(out, again)
     stale = again / "points" / f"{sw.points[3].digest}.json"
     rec = json.loads(stale.read_text())
-    rec["metrics"]["with_compensation"]["rms_total_px"] = -1.0  # as if older code wrote it
+    rec["metrics"]["with_compensation"]["rms_total_px"] = -1.0  # as if edited
     stale.write_text(json.dumps(rec))
     with runner(0) as r:
         assert run_sweep(sw, again, r).ran == 0  # kept as it is
         summary = run_sweep(sw, again, r, fresh=True)
     assert summary.skipped == 0 and summary.ran == len({p.digest for p in sw.points})
     assert json.loads(stale.read_text())["metrics"]["with_compensation"]["rms_total_px"] > 0
+
+
+def test_a_code_change_changes_every_points_digest(monkeypatch):
+    """A point (and a run's checkpoint) is known by its scenario and the code's source: the
+    same scenario under other code gets another digest, so it is run again."""
+    import imc.scenario as scenario_mod
+
+    sc = scenario_mod.load_scenario(QUICKSTART)
+    before = sc.digest()
+    monkeypatch.setattr(scenario_mod, "code_digest", lambda: "0" * 16)
+    assert sc.digest() != before

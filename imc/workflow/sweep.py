@@ -15,10 +15,11 @@ A sweep file::
 
 Every point is validated by the scenario schema before anything runs (an error names the
 axis and the field). Each finished point is written atomically to
-``OUT/points/<digest>.json`` (digest: the point's full scenario); a restarted sweep skips
-them, so a kill loses at most the points in flight. Results: ``results.nc`` (xarray, one
-dimension per axis and ``seed``; ``point`` and ``seed`` for zip), ``results.parquet`` and
-``results.csv`` (one row per point).
+``OUT/points/<digest>.json`` (digest: the point's full scenario and imcsim's source,
+`imc.scenario.code_digest`); a restarted sweep of the same code skips them, so a kill loses
+at most the points in flight, and a sweep after a code change runs every point again.
+Results: ``results.nc`` (xarray, one dimension per axis and ``seed``; ``point`` and ``seed``
+for zip), ``results.parquet`` and ``results.csv`` (one row per point).
 """
 
 from __future__ import annotations
@@ -366,8 +367,8 @@ def write_manifest(sweep: Sweep, out_dir: Path) -> None:
 def run_sweep(sweep: Sweep, out_dir: Path, runner: Runner, progress: ProgressFn | None = None,
               retry_failed: bool = False, fresh: bool = False) -> SweepSummary:
     """Run the points not finished in ``out_dir`` (the failed ones too with
-    ``retry_failed``; every point with ``fresh``: a point's digest is its scenario, not the
-    code that ran it, so after a code change its earlier result would be kept), writing each
+    ``retry_failed``; every point with ``fresh``; a point's digest holds its scenario and
+    the code's source, so a code change runs it again anyway), writing each
     as it finishes (an earlier result is replaced only then); then the results tables."""
     t0 = time.perf_counter()
     out_dir = Path(out_dir)

@@ -16,6 +16,18 @@ is solved with the prior ``nu_k = 0 +- sigma_f,k``, which is the generalised lea
 with the links' covariance ``diag(sigma^2) + D diag(sigma_f^2) D^T`` (D the incidence
 matrix) and keeps the model exact when aiding measures ``s`` without ``nu``.
 
+Links that share their frames' pixels (:class:`SharedNoise`): a chained tracker measures
+each pair on blocks of its two frames, and each frame's noise over a block's pixels enters
+every link measured on those pixels (half a pair's variance from each frame, the analytic
+plant's split; the rendered no_stage.yaml's pairs from one reference region correlate by
+0.40-0.53). The links' covariance ``R = diag(sigma^2) + R_shared``, ``R_shared`` from the
+regions' overlaps (block-sparse: links correlate only through a frame they share), is used
+whole: generalised least squares through the sparse saddle-point (KKT) system
+``[[R, A], [A^T, 0]]``, whose inverse's lower-right block is the estimate's covariance
+``-(A^T R^-1 A)^-1``, exact for that noise model; a link all of whose error is shared has
+``sigma`` 0. Without it the rows are independent and the normal equations are solved as
+before (a chain solves to the same cumulative sum either way; only its covariance differs).
+
 The gauge: links see only differences, so one constant per axis is free. ``"first"``
 fixes ``s_0 = 0`` (the loop's zero, docs/conventions.md); ``"mean"`` gives the solution and
 covariance with zero mean (the same solution projected: ``P s``, ``P C P``, ``P = I - 11^T/N``);
@@ -41,7 +53,7 @@ the smoothed series keeps an exact posterior covariance (exact when the prior ho
 
 Covariance: the full (N, N) covariance per axis is returned, dense: 8 N^2 bytes per axis
 (8 MB at N = 1,000 frames, 72 MB at 3,000), computed by solving the factorised normal
-matrix against the s columns in blocks of 256. Differences and projections
+matrix (or saddle-point system) against the s columns in blocks of 256. Differences and projections
 (:meth:`NetworkSolution.difference_sigma_px`, :func:`geometry_rms`) read it.
 
 References
@@ -365,6 +377,27 @@ class Links:
         return cls(a, b, d, sg, None, t_s, frame_sigma_px)
 
 
+def with_independent_fraction(links: Links, fraction: ArrayLike) -> Links:
+    """The same links with a fraction f (scalar or (2,) per axis) of each link's variance
+    taken as its own and the rest shared through its frames' pixels: the links' covariance
+    ``(1 - f) R + f diag(R)`` (R their covariance with their :class:`SharedNoise`); each
+    link's variance is unchanged. See :func:`estimate_independent_fraction`."""
+    f = np.broadcast_to(np.asarray(fraction, dtype=np.float64), (2,))
+    if not np.all((f >= 0) & (f <= 1)):
+        raise ValueError(f"fraction must be in [0, 1] per axis, got {f}")
+    if links.shared is None:
+        raise ValueError("links carry no shared noise: nothing to split")
+    sh = links.shared
+    diag = np.zeros((links.a.size, 2))
+    for ax, c in enumerate(sh.covariance(np.arange(links.a.size))):
+        diag[:, ax] = c.diagonal()
+    sigma = np.sqrt(links.sigma_px**2 + f * diag)
+    shared = SharedNoise(sh.link, sh.frame, sh.corner_px, sh.coef_px * np.sqrt(1.0 - f),
+                         sh.block_px, sh.cell_px)
+    return Links(links.a, links.b, links.d_px, sigma, links.valid, links.t_s,
+                 links.frame_sigma_px, shared)
+
+
 @dataclass(frozen=True)
 class Prior:
     """The smoother's prior: p-th differences of s are N(0, c_k q) (see the module
@@ -631,6 +664,29 @@ def _normal_solver(a_mat: sparse.csc_matrix, sigma: np.ndarray):
     return estimate, covariance
 
 
+def _kkt_system(a_mat: sparse.csc_matrix, sigma: np.ndarray, shared: sparse.csr_matrix,
+                independent: float = 0.0):
+    """The scaled saddle-point matrix (csc) of :func:`_kkt_solver`, the rows' scale d (rows,)
+    and the unknowns' col (unknowns,); ``independent``: the fraction f of each shared link's
+    variance taken as its own, ``R_f = (1 - f) R + f diag(R)`` on the links' rows (the
+    diagonal, hence both scales, does not change with f)."""
+    n_rows = a_mat.shape[0]
+    m = shared.shape[0]
+    var = np.maximum(sigma, SIGMA_FLOOR_PX) ** 2
+    r = sparse.diags(var) + sparse.block_diag([shared, sparse.csr_matrix(
+        (n_rows - m, n_rows - m))])
+    if independent:
+        diag = r.diagonal()
+        r = (1.0 - independent) * r + independent * sparse.diags(diag)
+    d = 1.0 / np.sqrt(r.diagonal())
+    a_s = sparse.diags(d) @ a_mat
+    col = 1.0 / np.sqrt(np.asarray(a_s.multiply(a_s).sum(axis=0))).ravel()
+    a_s = a_s @ sparse.diags(col)
+    kkt = sparse.bmat([[sparse.diags(d) @ r @ sparse.diags(d), a_s], [a_s.T, None]],
+                      format="csc")
+    return kkt, d, col
+
+
 def _kkt_solver(a_mat: sparse.csc_matrix, sigma: np.ndarray, shared: sparse.csr_matrix):
     """Generalised least squares with the rows' covariance ``R = diag(sigma^2) + shared``
     (``shared`` (m, m) on the first m rows: the links'), sparse, through the saddle-point
@@ -640,16 +696,7 @@ def _kkt_solver(a_mat: sparse.csc_matrix, sigma: np.ndarray, shared: sparse.csr_
     rows and unknowns are scaled to unit size first (R to a correlation matrix, A's columns
     to unit norm). Same returns as :func:`_normal_solver`."""
     n_rows, n_unk = a_mat.shape
-    m = shared.shape[0]
-    var = np.maximum(sigma, SIGMA_FLOOR_PX) ** 2
-    r = sparse.diags(var) + sparse.block_diag([shared, sparse.csr_matrix(
-        (n_rows - m, n_rows - m))])
-    d = 1.0 / np.sqrt(r.diagonal())
-    a_s = sparse.diags(d) @ a_mat
-    col = 1.0 / np.sqrt(np.asarray(a_s.multiply(a_s).sum(axis=0))).ravel()
-    a_s = a_s @ sparse.diags(col)
-    kkt = sparse.bmat([[sparse.diags(d) @ r @ sparse.diags(d), a_s], [a_s.T, None]],
-                      format="csc")
+    kkt, d, col = _kkt_system(a_mat, sigma, shared)
     lu = spla.splu(kkt)
 
     def estimate(y: np.ndarray) -> np.ndarray:
@@ -761,6 +808,70 @@ def solve_network(links: Links, n_frames: int, *, gauge: str | None = None,
     Sheikh, Zhai & Shah, ACCV 2004; MintPy ``ifgram_inversion``.
     """
     return _solve(links, n_frames, gauge=gauge, gyro=gyro, absolute=absolute, prior=None)
+
+
+def estimate_independent_fraction(links: Links, n_frames: int) -> np.ndarray:
+    """How much of each link's error is its own rather than its frames' pixels', per axis,
+    estimated from the record itself: the fraction f (2,) of the links' variance in
+    ``R_f = c ((1 - f) R + f diag(R))`` (R the links' covariance with their
+    :class:`SharedNoise`, c a free scale) that maximises the restricted (REML) likelihood of
+    the network's redundant links, ``-1/2 (log|R_f| + log|A^T R_f^-1 A| + r^T R_f^-1 r)``
+    with c profiled out. One sparse LU of the saddle-point system per evaluation gives both
+    determinants at once (``|KKT| = |R_f| |A^T R_f^-1 A|``) and ``r^T R_f^-1 r = y^T lambda``;
+    on a grid of f in [0, 0.95], then bounded Brent.
+
+    Parameters
+    ----------
+    links : Links
+        Links with their shared noise (``links.shared``), in px.
+    n_frames : int
+        N, the frames (unknowns per axis).
+
+    Returns
+    -------
+    numpy.ndarray, (2,)
+        f per axis (row, col): 0 when the shared model explains the links' consistency, up
+        to 0.95.
+
+    References
+    ----------
+    Patterson & Thompson, Biometrika 58(3), 1971 (restricted maximum likelihood); Harville,
+    JASA 72, 1977.
+    """
+    from scipy.optimize import minimize_scalar
+
+    if links.shared is None:
+        raise ValueError("links carry no shared noise: nothing to split")
+    if links.d_px.ndim != 2:
+        raise ValueError("estimate the fraction on one realisation (d_px (n, 2))")
+    n = int(n_frames)
+    t = np.arange(n, dtype=np.float64)
+    a_mat, y, sig, _, _ = _assemble(links, n, None, None, None, t)
+    a_k = a_mat[:, 1:].tocsc()  # the gauge "first"
+    dof = a_k.shape[0] - a_k.shape[1]
+    if dof < 3:
+        raise ValueError(f"the network has {dof} redundant links: too few to tell the links' "
+                         "own error from their frames'")
+    shared = links.shared.covariance(np.flatnonzero(links.valid))
+    out = np.zeros(2)
+    for ax in range(2):
+        def crit(f: float, ax=ax) -> float:
+            kkt, d, _ = _kkt_system(a_k, sig[:, ax], shared[ax], f)
+            lu = spla.splu(kkt)
+            rhs = np.zeros(kkt.shape[0])
+            rhs[:a_k.shape[0]] = d * y[:, ax]
+            q = float(rhs[:a_k.shape[0]] @ lu.solve(rhs)[:a_k.shape[0]])
+            logdet = float(np.sum(np.log(np.abs(lu.U.diagonal()))))
+            return logdet + dof * np.log(max(q, 1e-300))
+
+        grid = np.linspace(0.0, 0.95, 11)
+        vals = [crit(f) for f in grid]
+        k = int(np.argmin(vals))
+        lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)]
+        res = minimize_scalar(crit, bounds=(lo, hi), method="bounded",
+                              options={"xatol": 1e-3})
+        out[ax] = float(res.x) if res.fun < vals[k] else float(grid[k])
+    return out
 
 
 def estimate_prior(solution: NetworkSolution, order: int = 2) -> Prior:

@@ -266,6 +266,35 @@ def test_the_shared_noise_model_is_the_analytic_plants():
         assert pred.mean() < -3 / np.sqrt(len(k1))  # which independence would set to 0
 
 
+def test_the_links_own_share_of_their_error_is_estimated_from_the_record():
+    """A chain of 300 frames, K = 4, whose links carry their frames' shared noise and, in the
+    second case, an independent error of half their variance: the restricted likelihood of
+    the redundant links finds 0 (< 0.1) and 0.5 (within 0.2) on both axes."""
+    from ground.network import estimate_independent_fraction, with_independent_fraction
+
+    n = 300
+    t, s = wobble(n)
+    a, b, reg, share, sigma = region_chain(n, 4)
+    shared = SharedNoise.from_blocks(a, b, reg[:, :, 0], reg[:, :, 1], share, BLOCK_PX,
+                                     CELL_PX)
+    links = Links(a, b, s[b] - s[a], np.zeros_like(sigma), t_s=t, shared=shared)
+    var = np.stack([c.diagonal() for c in shared.covariance(np.arange(len(a)))], axis=1)
+    for f_true, seed in ((0.0, 0), (0.5, 1)):
+        rng = np.random.default_rng([32, 9, seed])
+        noise = np.sqrt(1.0 - f_true) * draw_region_noise(a, b, reg, share, 1, rng)[..., 0] \
+            + np.sqrt(f_true * var) * rng.standard_normal(var.shape)
+        f = estimate_independent_fraction(
+            Links(a, b, links.d_px + noise, links.sigma_px, t_s=t, shared=shared), n)
+        assert np.all(np.abs(f - f_true) < (0.1 if f_true == 0 else 0.2)), f
+    # the split keeps each link's variance and moves the rest off the shared part
+    half = with_independent_fraction(links, 0.5)
+    cov = half.shared.covariance(np.arange(len(a)))
+    for ax in range(2):
+        np.testing.assert_allclose(cov[ax].diagonal() + half.sigma_px[:, ax] ** 2, var[:, ax],
+                                   rtol=1e-12)
+        np.testing.assert_allclose(cov[ax].diagonal(), 0.5 * var[:, ax], rtol=1e-12)
+
+
 def test_baselines_1_to_4_cut_the_drift_as_their_covariance_predicts():
     rng = np.random.default_rng([32, 3])
     n, m = 331, 200

@@ -170,14 +170,15 @@ def draw_region_noise(a, b, reg, share, m: int, rng) -> np.ndarray:
                 r.append(np.full(w * w, i * len(GRID) + j))
                 c.append(frame * nc * nc + (rr * nc + cc).ravel())
                 v.append(np.full(w * w, sign / w / np.sqrt(2.0)))
-    cells = sparse.csr_matrix((np.concatenate(v), (np.concatenate(r), np.concatenate(c))),
-                              shape=(len(a) * len(GRID), (b.max() + 1) * nc * nc))
+    used, c = np.unique(np.concatenate(c), return_inverse=True)  # only the cells read
+    cells = sparse.csr_matrix((np.concatenate(v).astype(np.float32), (np.concatenate(r), c)),
+                              shape=(len(a) * len(GRID), used.size))
     out = np.empty((len(a), 2, m))
     for ax in range(2):
         for j in range(0, m, 250):  # 250 draws of every cell at a time
             k = min(m - j, 250)
-            blocks = (cells @ rng.standard_normal((cells.shape[1], k))).reshape(
-                len(a), len(GRID), k)
+            z = rng.standard_normal((cells.shape[1], k), dtype=np.float32)
+            blocks = (cells @ z).reshape(len(a), len(GRID), k)
             out[:, ax, j:j + k] = np.einsum("lb,lbm->lm", share[:, :, ax], blocks)
     return out
 

@@ -61,10 +61,11 @@ def _run(d: dict):
     return m, plant, res, links
 
 
-def _from_run(d: dict, run: Path):
+def _from_run(d: dict, run: Path, links_npz: Path | None = None):
     """(models, plant, loop result, links) from a rendered run of the same scenario written
     by ``imc run --save-frames`` (tracks.csv, series.npz, frames.npz): the loop is not run
-    again, the ground's extra baselines are measured on its frames."""
+    again, the ground's extra baselines are measured on its frames (or read from
+    ``links_npz``, a table this function wrote there before: ``--links``)."""
     from types import SimpleNamespace
 
     m = build_models(parse_scenario(d))
@@ -83,7 +84,18 @@ def _from_run(d: dict, run: Path):
         centers_px=centers, measured=np.ones((n_f, n_b), bool), arrive_s=m.frame_mid_s.copy())
     plant = SimpleNamespace(frames=frames, stage_mean=np.zeros((n_f, 2)))
     res = SimpleNamespace(record=rec)
+    if links_npz is not None and links_npz.exists():
+        from imc.wiring.links import LinkTable
+
+        with np.load(links_npz) as z:
+            arr = {k: z[k] for k in z.files}
+        for k in ("block_px", "cell_px"):
+            if k in arr:
+                arr[k] = int(arr[k])
+        return m, plant, res, LinkTable(**arr)
     links = measure_links(m, rec, plant, plant.stage_mean, 6)
+    if links_npz is not None:
+        np.savez(links_npz, **links.arrays())
     return m, plant, res, links
 
 
@@ -105,6 +117,7 @@ def _geometry(m, links, lines: int, **product) -> dict:
     p = rest.predicted_geometry(t)
     perf = offsets_from(plan, perfect_jitter(mm, rest.record), None)
     return {"lines": lines, "baselines": rest.baselines, "aiding": list(rest.aiding),
+            "independent_fraction": rest.independent_fraction,
             "constant_px": g["constant"].tolist(), "affine_px": g["affine"].tolist(),
             "absolute_px": np.sqrt(np.mean((est - true) ** 2, axis=0)).tolist(),
             "predicted_constant_px": p["constant_px"], "predicted_affine_px": p["affine_px"],
@@ -190,6 +203,42 @@ def correlator_efficiency(pairs: int = 150, seed: int = 32) -> dict:
     return out
 
 
+def solve_timing(frames: tuple[int, ...] = (331, 2000), k_max: int = 4) -> dict:
+    """Seconds of one network solve (estimate and covariance) of a synthetic chained tracker
+    like no_stage.yaml's (4 blocks of 64 px on a 256-px sensor, the content moving 41.5 px a
+    frame, pairs cut as :func:`imc.wiring.links.pair_corners` cuts them) with the links'
+    shared noise (generalised least squares, the saddle-point system) and weighed as
+    independent (the normal equations), at ``frames`` frames and K = ``k_max``."""
+    from ground.network import Links, SharedNoise, solve_network
+    from imc.wiring.links import pair_corners
+
+    grid = np.array([[32, 32], [32, 160], [160, 32], [160, 160]])
+    out = {}
+    for n in frames:
+        pairs = np.array([(b - j, b) for b in range(1, n) for j in range(1, min(k_max, b) + 1)])
+        reg = np.zeros((len(pairs), 4, 2, 2), int)
+        used = np.zeros((len(pairs), 4), bool)
+        for i, (a, b) in enumerate(pairs):
+            st = np.tile([41.5 * (b - a), 0.3 * (b - a)], (4, 1))
+            ref, used[i] = pair_corners(grid, st, 64, np.array([192, 192]))
+            reg[i, :, 0], reg[i, :, 1] = ref, ref + np.rint(st).astype(int)
+        share = np.where(used[..., None], 0.01, 0.0) * np.ones(2)
+        valid = used.any(axis=1)
+        shared = SharedNoise.from_blocks(pairs[:, 0], pairs[:, 1], reg[:, :, 0], reg[:, :, 1],
+                                         share, 64)
+        sigma = np.sqrt(np.sum(share**2, axis=1)) + np.where(valid, 0.0, 1.0)[:, None]
+        d = np.zeros((len(pairs), 2))
+        row = {}
+        for name, links in (("shared_s", Links(pairs[:, 0], pairs[:, 1], d, 0.0 * sigma, valid,
+                                                shared=shared)),
+                            ("independent_s", Links(pairs[:, 0], pairs[:, 1], d, sigma, valid))):
+            t0 = time.perf_counter()
+            solve_network(links, n)
+            row[name] = time.perf_counter() - t0
+        out[str(n)] = {"links": int(valid.sum()), **row}
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="the analytic plant only")
@@ -202,8 +251,18 @@ def main() -> None:
                     "efficiency on synthetic textures")
     ap.add_argument("--orthoimage", action="store_true", help="only the reference "
                     "orthoimage's ground control on --run's record and product renders")
+    ap.add_argument("--baselines", action="store_true", help="only the geometry against K, "
+                    "with the links' shared noise and weighed as independent")
+    ap.add_argument("--links", type=Path, default=None, help="with --run: the links measured "
+                    "on its frames, read from this .npz (written there by the first call)")
+    ap.add_argument("--timing", action="store_true", help="only the network solve's time "
+                    "with and without the links' shared noise")
     a = ap.parse_args()
     out: dict = {}
+    if a.timing:
+        out["timing"] = solve_timing()
+        print(json.dumps(out, indent=1), flush=True)
+        return
     if a.orthoimage:
         out["orthoimage"] = orthoimage_figure(a.run)
         print(json.dumps(out, indent=1, default=str), flush=True)
@@ -222,7 +281,7 @@ def main() -> None:
         t0 = time.perf_counter()
         d = _scenario()
         d["plant"] = {"fidelity": fid}
-        m, plant, res, links = (_from_run(d, a.run) if fid == "rendered" and a.run
+        m, plant, res, links = (_from_run(d, a.run, a.links) if fid == "rendered" and a.run
                                 else _run(d))
         r = {"loop_s": time.perf_counter() - t0,
              "efficiency": links.efficiency.tolist(), "links": int(links.valid.sum())}
@@ -232,6 +291,15 @@ def main() -> None:
                                                                   "smoother": sm})
                           for k, sm in ((1, False), (1, True), (2, True), (3, True),
                                         (4, True))]
+        if links.regions is not None:  # the same links weighed as independent (before)
+            alone = dataclasses.replace(links, regions=None, share_px=None)
+            r["baselines_independent"] = [
+                _geometry(m, alone, 12800, restitution={"baselines": k, "smoother": sm})
+                for k, sm in ((1, False), (1, True), (2, True), (3, True), (4, True))]
+        if a.baselines:
+            out[fid] = r
+            print(json.dumps({fid: r}, indent=1), flush=True)
+            continue
         r["aided"] = [_geometry(m, links, 12800, **extra) for extra in (
             {"gyro": {}}, {"ground_control": {"points": 4, "sigma_px": 0.02}},
             {"gyro": {}, "ground_control": {"points": 4, "sigma_px": 0.02}})]

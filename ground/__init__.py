@@ -7,7 +7,8 @@ ground/ owns what happens to the main imager's strip (or frame) once it is on th
   perfect record (the truth) to separate the record's own error from interpolation;
 * ``ground.network``: the motion record solved as a network of pair measurements (every
   link of every baseline) by sparse weighted least squares with its covariance, per-frame
-  noise shared by a frame's links, a two-sided smoother whose prior is estimated from the
+  noise shared by a frame's links and each frame's noise over the pixels its links share
+  (generalised least squares), a two-sided smoother whose prior is estimated from the
   record itself, and the geometry metrics per axis after a constant and after an affine;
 * ``ground.aiding``: a gyro's error model, its simulated readings and its relative angles
   between frames, and absolute fixes (ground control, a star tracker), fused in that solve;

@@ -194,7 +194,8 @@ def _product(m: Models, res, truth, plant, plan, out: Path, fresh: bool, metrics
     ds, rendered = product_study(m, res, out, fresh, rest, plan)
     ds.attrs["restitution"] = {"baselines": rest.baselines, "links": rest.links_used,
                                "aiding": list(rest.aiding),
-                               "efficiency": [float(x) for x in links.efficiency]}
+                               "efficiency": [float(x) for x in links.efficiency],
+                               "independent_fraction": rest.independent_fraction}
     if "ground_control" in ds.attrs:  # a reference orthoimage's fixes, measured on the product
         ds.attrs["restitution"]["aiding"].append("orthoimage")
         ds.attrs["restitution"]["ground_control"] = ds.attrs.pop("ground_control")

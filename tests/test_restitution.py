@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import sparse
 
+from compensation.analytic_plant import REGION_CELLS
 from ground.aiding import (
     STAR_TRACKER_SIGMA_PX,
     Absolute,
@@ -24,6 +26,7 @@ from ground.blend import band_error_variance, band_masks, band_split, blend_corr
 from ground.network import (
     Links,
     Prior,
+    SharedNoise,
     estimate_prior,
     geometry_rms,
     smooth_network,
@@ -113,6 +116,184 @@ def test_the_network_reproduces_its_predicted_covariance_monte_carlo():
     en = naive.s_px - s[..., None]
     measured = np.mean((en[21] - en[20]) ** 2, axis=-1)
     assert np.all(measured / naive.difference_sigma_px(20, 21) ** 2 - 1 > 3 * tol)
+
+
+# a small chained tracker: 4 blocks of 32 px on a 128-px sensor, the content moving 20.5 px a
+# frame; the frames' noise a field of cells, the analytic plant's REGION_CELLS across a block
+BLOCK_PX, SENSOR_PX = 32, 128
+CELL_PX = BLOCK_PX // REGION_CELLS
+GRID = np.array([[16, 16], [16, 80], [80, 16], [80, 80]])
+STEP_PX = np.array([20.5, 3.0])
+BLOCK_SIGMA_PX = np.array([[0.02, 0.03], [0.02, 0.03], [0.03, 0.02], [0.03, 0.02]])
+
+
+def pair_regions(a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The blocks of the pair (a, b) cut as the image plants cut them (imc.wiring.links)."""
+    from imc.wiring.links import pair_corners
+
+    st = np.tile(STEP_PX * (b - a), (len(GRID), 1))
+    ref, used = pair_corners(GRID, st, BLOCK_PX, np.full(2, SENSOR_PX - BLOCK_PX), margin=4)
+    return ref, ref + np.rint(st).astype(int), used
+
+
+def region_chain(n: int, k_max: int):
+    """Every pair of baselines 1..k_max: (a, b, regions (n, B, 2, 2), each block's share of its
+    link's error (n, B, 2) px (the inverse-variance mean of the used blocks), link sigma)."""
+    pairs = [(b - j, b) for b in range(1, n) for j in range(1, min(k_max, b) + 1)]
+    a = np.array([p[0] for p in pairs])
+    b = np.array([p[1] for p in pairs])
+    reg = np.zeros((len(pairs), len(GRID), 2, 2), int)
+    used = np.zeros((len(pairs), len(GRID)), bool)
+    for i, (x, y) in enumerate(pairs):
+        ref, cur, u = pair_regions(x, y)
+        reg[i, :, 0], reg[i, :, 1], used[i] = ref, cur, u
+    w = np.where(used[..., None], 1.0 / BLOCK_SIGMA_PX**2, 0.0)
+    share = w / w.sum(axis=1, keepdims=True) * BLOCK_SIGMA_PX
+    return a, b, reg, share, np.sqrt(np.sum(share**2, axis=1))
+
+
+def draw_region_noise(a, b, reg, share, m: int, rng) -> np.ndarray:
+    """m draws (n, 2, m) px of the links' noise as the analytic plant draws a chain's
+    (compensation/analytic_plant.py, ``_region_noise``): each frame a field of unit cells per
+    axis, a block's noise (its current frame's cells over its current region less its
+    reference frame's over its reference region) / sqrt(2), the link its blocks' weighted
+    sum."""
+    w = BLOCK_PX // CELL_PX
+    nc = SENSOR_PX // CELL_PX
+    r, c, v = [], [], []
+    for i in range(len(a)):
+        for j in np.flatnonzero(np.any(share[i] > 0, axis=1)):
+            for frame, corner, sign in ((a[i], reg[i, j, 0], -1.0), (b[i], reg[i, j, 1], 1.0)):
+                r0, c0 = np.clip(np.rint(corner / CELL_PX).astype(int), 0, nc - w)
+                rr, cc = np.meshgrid(np.arange(r0, r0 + w), np.arange(c0, c0 + w),
+                                     indexing="ij")
+                r.append(np.full(w * w, i * len(GRID) + j))
+                c.append(frame * nc * nc + (rr * nc + cc).ravel())
+                v.append(np.full(w * w, sign / w / np.sqrt(2.0)))
+    used, c = np.unique(np.concatenate(c), return_inverse=True)  # only the cells read
+    cells = sparse.csr_matrix((np.concatenate(v).astype(np.float32), (np.concatenate(r), c)),
+                              shape=(len(a) * len(GRID), used.size))
+    out = np.empty((len(a), 2, m))
+    for ax in range(2):
+        for j in range(0, m, 250):  # 250 draws of every cell at a time
+            k = min(m - j, 250)
+            z = rng.standard_normal((cells.shape[1], k), dtype=np.float32)
+            blocks = (cells @ z).reshape(len(a), len(GRID), k)
+            out[:, ax, j:j + k] = np.einsum("lb,lbm->lm", share[:, :, ax], blocks)
+    return out
+
+
+def test_links_sharing_their_frames_pixels_reproduce_their_covariance_monte_carlo():
+    """K = 3 pairs whose blocks share their frames' pixels (the analytic plant's noise): the
+    solve with the shared noise reproduces its covariance over 2,000 draws; the same links
+    weighed as independent predict a drift the draws exceed."""
+    rng = np.random.default_rng([32, 8])
+    n, m = 40, 2000
+    t, s = wobble(n)
+    a, b, reg, share, sigma = region_chain(n, 3)
+    noise = draw_region_noise(a, b, reg, share, m, rng)
+    d = (s[b] - s[a])[..., None] + noise
+    shared = SharedNoise.from_blocks(a, b, reg[:, :, 0], reg[:, :, 1], share, BLOCK_PX,
+                                     CELL_PX)
+    sol = solve_network(Links(a, b, d, np.zeros_like(sigma), t_s=t, shared=shared), n)
+    naive = solve_network(Links(a, b, d, sigma, t_s=t), n)
+    tol = 3 * np.sqrt(2.0 / m)
+    for ax in range(2):
+        # the links' own variance: their blocks' where these do not overlap, more where a
+        # pair's cut moves its blocks onto each other's pixels
+        r = np.diag(shared.covariance(np.arange(len(a)))[ax].toarray())
+        assert np.all(r >= sigma[:, ax] ** 2 * (1 - 1e-12))
+        assert abs(np.mean(noise[:, ax] ** 2 / r[:, None]) - 1) < tol
+        err = sol.s_px[:, ax] - s[:, ax, None]
+        c = sol.cov_px2[ax]
+        for k in (n // 2, n - 1):
+            assert abs(np.mean(err[k] ** 2) / c[k, k] - 1) < tol
+        dv = c[10, 10] + c[30, 30] - 2 * c[10, 30]
+        assert abs(np.mean((err[30] - err[10]) ** 2) / dv - 1) < tol
+        e0 = err - err.mean(axis=0)
+        pred = geometry_rms(np.zeros((n, 2)), t, sol.cov_px2)["predicted_constant"][ax]
+        assert abs(np.mean(e0**2) / pred**2 - 1) < tol
+        # weighed as independent: the drift after a constant exceeds its prediction
+        en = naive.s_px[:, ax] - s[:, ax, None]
+        en -= en.mean(axis=0)
+        pn = geometry_rms(np.zeros((n, 2)), t, naive.cov_px2)["predicted_constant"][ax]
+        assert np.mean(en**2) / pn**2 - 1 > 3 * tol
+    # K = 1: the shared noise changes the chain's covariance, never its solution
+    a1, b1, reg1, share1, sigma1 = region_chain(n, 1)
+    d1 = d[np.flatnonzero(b - a == 1), :, 0]
+    chain = solve_network(Links(a1, b1, d1, np.zeros_like(sigma1), t_s=t,
+                                shared=SharedNoise.from_blocks(a1, b1, reg1[:, :, 0],
+                                                               reg1[:, :, 1], share1,
+                                                               BLOCK_PX, CELL_PX)), n)
+    np.testing.assert_allclose(chain.s_px, np.vstack([np.zeros((1, 2)), np.cumsum(d1, 0)]),
+                               rtol=0, atol=1e-10)
+
+
+def test_the_shared_noise_model_is_the_analytic_plants():
+    """The analytic plant's own chain (its pair_links over its pair_regions, 300 frames,
+    K = 3): whitened by the links' predicted covariance, its noise has unit variance; weighed
+    as independent it does not."""
+    from compensation.analytic_plant import AnalyticPlant
+
+    n = 300
+    plant = AnalyticPlant(lambda tt: np.zeros((len(tt), len(GRID), 2)), GRID + 15.5,
+                          BLOCK_SIGMA_PX, np.arange(n) / RATE_HZ, 1e-4, seed=(7,), chain=True,
+                          pair_regions=pair_regions, frame_shape=(SENSOR_PX, SENSOR_PX),
+                          block_px=BLOCK_PX)
+    assert plant.cell_px == CELL_PX
+    a, b, d, sig, valid = plant.pair_links(3)
+    w = np.where(valid[..., None], 1.0 / sig**2, 0.0)
+    share = w / w.sum(axis=1, keepdims=True) * sig
+    link = np.sum(w * d, axis=1) / w.sum(axis=1)
+    reg = np.stack([np.stack(pair_regions(int(x), int(y))[:2], axis=1)
+                    for x, y in zip(a, b, strict=True)])
+    cov = SharedNoise.from_blocks(a, b, reg[:, :, 0], reg[:, :, 1], share, BLOCK_PX,
+                                  CELL_PX).covariance(np.arange(len(a)))
+    tol = 3 * np.sqrt(2.0 / len(a))
+    for ax in range(2):
+        chol = np.linalg.cholesky(cov[ax].toarray())
+        z = np.linalg.solve(chol, link[:, ax])
+        assert abs(np.mean(z**2) - 1) < tol
+        # independent links: the same noise reads as far from unit variance
+        ind = np.diag(np.diag(cov[ax].toarray()) ** -0.5)
+        zi = ind @ link[:, ax]
+        assert abs(np.mean(zi**2) - 1) < tol  # each link's own variance is right ...
+        x = link[:, ax]
+        k1 = np.flatnonzero(b - a == 1)
+        pred = cov[ax].toarray()[k1[:-1], k1[1:]] / np.sqrt(np.diag(cov[ax].toarray())[k1[:-1]]
+                                                            * np.diag(cov[ax].toarray())[k1[1:]])
+        lag1 = np.corrcoef(x[k1[:-1]], x[k1[1:]])[0, 1]
+        assert abs(lag1 - pred.mean()) < 3 / np.sqrt(len(k1))  # ... and so is its correlation
+        assert pred.mean() < -3 / np.sqrt(len(k1))  # which independence would set to 0
+
+
+def test_the_links_own_share_of_their_error_is_estimated_from_the_record():
+    """A chain of 300 frames, K = 4, whose links carry their frames' shared noise and, in the
+    second case, an independent error of half their variance: the restricted likelihood of
+    the redundant links finds 0 (< 0.1) and 0.5 (within 0.2) on both axes."""
+    from ground.network import estimate_independent_fraction, with_independent_fraction
+
+    n = 300
+    t, s = wobble(n)
+    a, b, reg, share, sigma = region_chain(n, 4)
+    shared = SharedNoise.from_blocks(a, b, reg[:, :, 0], reg[:, :, 1], share, BLOCK_PX,
+                                     CELL_PX)
+    links = Links(a, b, s[b] - s[a], np.zeros_like(sigma), t_s=t, shared=shared)
+    var = np.stack([c.diagonal() for c in shared.covariance(np.arange(len(a)))], axis=1)
+    for f_true, seed in ((0.0, 0), (0.5, 1)):
+        rng = np.random.default_rng([32, 9, seed])
+        noise = np.sqrt(1.0 - f_true) * draw_region_noise(a, b, reg, share, 1, rng)[..., 0] \
+            + np.sqrt(f_true * var) * rng.standard_normal(var.shape)
+        f = estimate_independent_fraction(
+            Links(a, b, links.d_px + noise, links.sigma_px, t_s=t, shared=shared), n)
+        assert np.all(np.abs(f - f_true) < (0.1 if f_true == 0 else 0.2)), f
+    # the split keeps each link's variance and moves the rest off the shared part
+    half = with_independent_fraction(links, 0.5)
+    cov = half.shared.covariance(np.arange(len(a)))
+    for ax in range(2):
+        np.testing.assert_allclose(cov[ax].diagonal() + half.sigma_px[:, ax] ** 2, var[:, ax],
+                                   rtol=1e-12)
+        np.testing.assert_allclose(cov[ax].diagonal(), 0.5 * var[:, ax], rtol=1e-12)
 
 
 def test_baselines_1_to_4_cut_the_drift_as_their_covariance_predicts():

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from correlator.tracker import BlockTracker
-from ground.network import Links
+from ground.network import Links, SharedNoise
 from imc.wiring import streams
 from imc.wiring.build import Models, predicted_px
 
@@ -39,7 +39,13 @@ class LinkTable:
     ``efficiency``), ``valid`` (n,), the delivery time ``deliver_s`` (n,) s (NaN: never),
     the ``baseline`` b - a (n,), the blocks that made each link ``blocks`` (n,), ``loop`` (n,)
     True for the loop's own links, and the per-axis ``efficiency`` (2,) the record's
-    consistency gave the bound."""
+    consistency gave the bound. A chained tracker's table also keeps where each block was
+    measured, ``regions`` (n, B, 2, 2) px (the top-left corner in the reference frame, then
+    in the current one), each block's share of its link's error ``share_px`` (n, B, 2) px
+    (its weight in the mean times its error, efficiency included; 0 where not used), the
+    blocks' side ``block_px`` and the frames' noise cell ``cell_px`` (1: the sensor's
+    pixels): links that use the same pixels of a frame share that frame's noise there
+    (:class:`ground.network.SharedNoise`)."""
 
     a: np.ndarray
     b: np.ndarray
@@ -51,21 +57,39 @@ class LinkTable:
     blocks: np.ndarray
     loop: np.ndarray
     efficiency: np.ndarray
+    regions: np.ndarray | None = None
+    share_px: np.ndarray | None = None
+    block_px: int = 0
+    cell_px: int = 1
 
     def network(self, t_s: np.ndarray, k_max: int | None = None) -> Links:
         """The loop's links and the extra ones of baselines up to ``k_max`` (None: all) as a
-        :class:`ground.network.Links` on frame times ``t_s``, s."""
+        :class:`ground.network.Links` on frame times ``t_s``, s: with the table's
+        ``regions``, each block's noise half its reference frame's over its reference region
+        and half its current frame's over its current one (all of a link's error shared,
+        :meth:`ground.network.SharedNoise.from_blocks`); without, every link independent."""
         keep = np.ones(len(self.a), bool) if k_max is None else (self.loop
                                                                  | (self.baseline <= k_max))
-        sig = np.where(self.valid[keep, None], self.sigma_px[keep], 1.0)
-        return Links(self.a[keep], self.b[keep], np.nan_to_num(self.d_px[keep]), sig,
-                     self.valid[keep], t_s)
+        a, b, v = self.a[keep], self.b[keep], self.valid[keep]
+        d = np.nan_to_num(self.d_px[keep])
+        if self.regions is None:
+            return Links(a, b, d, np.where(v[:, None], self.sigma_px[keep], 1.0), v, t_s)
+        reg = self.regions[keep]
+        shared = SharedNoise.from_blocks(a, b, reg[:, :, 0], reg[:, :, 1],
+                                         np.where(v[:, None, None], self.share_px[keep], 0.0),
+                                         self.block_px, self.cell_px)
+        return Links(a, b, d, np.where(v[:, None], 0.0, np.ones((1, 2))), v, t_s,
+                     shared=shared)
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The table as named arrays (``links.npz``)."""
-        return {k: getattr(self, k) for k in ("a", "b", "d_px", "sigma_px", "valid",
-                                               "deliver_s", "baseline", "blocks", "loop",
-                                               "efficiency")}
+        out = {k: getattr(self, k) for k in ("a", "b", "d_px", "sigma_px", "valid",
+                                              "deliver_s", "baseline", "blocks", "loop",
+                                              "efficiency")}
+        if self.regions is not None:
+            out.update(regions=self.regions, share_px=self.share_px,
+                       block_px=np.array(self.block_px), cell_px=np.array(self.cell_px))
+        return out
 
 
 def overlap_baselines(m: Models) -> int:
@@ -98,16 +122,23 @@ def combine_blocks(d: np.ndarray, sigma: np.ndarray, valid: np.ndarray
 
 def _loop_blocks(m: Models, rec, stage_mean: np.ndarray):
     """The loop's own links (frame k against its reference) per block: (a, b, d (n, B, 2),
-    sigma, valid)."""
+    sigma, valid, regions (n, B, 2, 2): each block's corner in the reference frame (its
+    recorded centre) and in the current one (moved by the rounded prediction, as
+    :meth:`correlator.tracker.BlockTracker.update` cuts it))."""
     ks = np.flatnonzero(rec.measured.any(axis=1) & (np.arange(len(m.frame_t_s)) > 0))
     a = rec.ref_frame[ks, 0].astype(int)
     d = np.full((len(ks), rec.shift_px.shape[1], 2), np.nan)
+    reg = np.zeros((len(ks), rec.shift_px.shape[1], 2, 2), int)
+    half = (m.scenario.correlator.block_px - 1) / 2.0
     for i, (r, k) in enumerate(zip(a, ks, strict=True)):
-        d[i] = rec.shift_px[k] - predicted_px(m, rec.centers_px[k], int(r), int(k),
-                                              stage_mean[r], stage_mean[k])
+        pred = predicted_px(m, rec.centers_px[k], int(r), int(k), stage_mean[r],
+                            stage_mean[k])
+        d[i] = rec.shift_px[k] - pred
+        reg[i, :, 0] = np.rint(rec.centers_px[k] - half)
+        reg[i, :, 1] = reg[i, :, 0] + np.rint(pred)
     valid = rec.valid[ks] & rec.measured[ks] & np.all(np.isfinite(d), axis=-1)
     keep = a < ks
-    return a[keep], ks[keep], d[keep], rec.sigma_px[ks][keep], valid[keep]
+    return a[keep], ks[keep], d[keep], rec.sigma_px[ks][keep], valid[keep], reg[keep]
 
 
 def chain_corners(corners: np.ndarray, step_px: np.ndarray, block_px: int,
@@ -169,7 +200,7 @@ def _extra_blocks(m: Models, frames: np.ndarray, stage_mean: np.ndarray, k_max: 
     fp = m.camera.focal_plane
     lim = np.array([fp.rows - b, fp.cols - b])
     grid = BlockTracker.centers_from(m.corners, b)
-    out_a, out_b, out_d, out_s, out_v = [], [], [], [], []
+    out_a, out_b, out_d, out_s, out_v, out_r = [], [], [], [], [], []
     for k in range(first, len(m.frame_t_s)):
         for j in range(first, min(k_max, k) + 1):
             a = k - j
@@ -187,12 +218,13 @@ def _extra_blocks(m: Models, frames: np.ndarray, stage_mean: np.ndarray, k_max: 
             out_d.append(res.shift - pred)
             out_s.append(np.where(res.valid[:, None], res.crlb, np.inf))
             out_v.append(res.valid & inside & np.all(np.isfinite(res.shift), axis=1))
+            out_r.append(np.stack([corners, corners + np.rint(pred).astype(int)], axis=1))
     if not out_a:
         nb = len(m.corners)
         return (np.zeros(0, int), np.zeros(0, int), np.zeros((0, nb, 2)),
-                np.zeros((0, nb, 2)), np.zeros((0, nb), bool))
+                np.zeros((0, nb, 2)), np.zeros((0, nb), bool), np.zeros((0, nb, 2, 2), int))
     return (np.array(out_a), np.array(out_b), np.stack(out_d), np.stack(out_s),
-            np.stack(out_v))
+            np.stack(out_v), np.stack(out_r))
 
 
 def measure_links(m: Models, rec, plant, stage_mean: np.ndarray,
@@ -217,8 +249,13 @@ def measure_links(m: Models, rec, plant, stage_mean: np.ndarray,
     k_max = overlap_baselines(m) if k_max is None else int(k_max)
     frames = getattr(plant, "frames", None)
     pairs = getattr(plant, "pair_links", None)
+    regions_of = getattr(plant, "pair_regions", None)
     if m.chain and frames is None and pairs is not None:
         parts = [pairs(k_max)]
+        if regions_of is not None:  # where the analytic plant draws each pair's noise
+            parts[0] = (*parts[0], np.stack([np.stack(regions_of(int(i), int(j))[:2], axis=1)
+                                             for i, j in zip(*parts[0][:2], strict=True)])
+                        if len(parts[0][0]) else np.zeros((0, len(m.corners), 2, 2), int))
         loop_flag = [parts[0][1] - parts[0][0] == 1]
     else:
         parts = [_loop_blocks(m, rec, stage_mean)]
@@ -227,7 +264,8 @@ def measure_links(m: Models, rec, plant, stage_mean: np.ndarray,
             parts.append(_extra_blocks(m, frames, stage_mean, k_max))
             loop_flag.append(np.zeros(len(parts[1][0]), bool))
     loop = np.concatenate(loop_flag)
-    a, b, d, s, v = (np.concatenate(x) for x in zip(*parts, strict=True))
+    with_regions = m.chain and all(len(p) == 6 for p in parts)
+    a, b, d, s, v = (np.concatenate(x) for x in list(zip(*parts, strict=False))[:5])
     mean, sig, nblk, chi2 = combine_blocks(d, s, v)
     ok = nblk >= 2
     dof = np.maximum(nblk - 1, 0)
@@ -236,4 +274,10 @@ def measure_links(m: Models, rec, plant, stage_mean: np.ndarray,
         else np.ones(2)
     deliver = np.asarray(rec.arrive_s, dtype=np.float64)[b]
     valid = (nblk >= 1) & np.all(np.isfinite(mean), axis=1)
-    return LinkTable(a, b, mean, sig * eff, valid, deliver, b - a, nblk, loop, eff)
+    if not with_regions:
+        return LinkTable(a, b, mean, sig * eff, valid, deliver, b - a, nblk, loop, eff)
+    # each block's part of its link's error: its inverse-variance weight times its error
+    share = np.where(v[..., None], sig[:, None] ** 2 / np.maximum(s, 1e-12), 0.0) * eff
+    return LinkTable(a, b, mean, sig * eff, valid, deliver, b - a, nblk, loop, eff,
+                     np.concatenate([p[5] for p in parts]), share,
+                     int(m.scenario.correlator.block_px), int(getattr(plant, "cell_px", 1)))

@@ -2,14 +2,16 @@
 
 From every link of the run (:mod:`imc.wiring.links`: the loop's own and the extra baselines)
 the ground solves the image-motion series at every tracker frame as a network
-(:func:`ground.network.solve_network`), smooths it two-sidedly with a prior estimated from the
-record itself (:func:`ground.network.smooth_network`) and fuses the aiding configured in the
-same solve: a body gyro (``product.gyro``, :mod:`ground.aiding`, whose readings are simulated
-here from the truth's attitude jitter with the stream ``gyro``) and ground control points
-(``product.ground_control``, absolute positions at instants spread over the product, each
-with its accuracy, stream ``ground_control``). The sensors are simulated from the truth; the
-solve sees only their readings and stated accuracies, never the truth or the scenario's
-jitter spectrum.
+(:func:`ground.network.solve_network`; the noise links share through their frames' pixels
+modelled, the part of it that is each link's own estimated from the record's consistency,
+:func:`ground.network.estimate_independent_fraction`), smooths it two-sidedly with a prior
+estimated from the record itself (:func:`ground.network.smooth_network`) and fuses the
+aiding configured in the same solve: a body gyro (``product.gyro``, :mod:`ground.aiding`,
+whose readings are simulated here from the truth's attitude jitter with the stream
+``gyro``) and ground control points (``product.ground_control``, absolute positions at
+instants spread over the product, each with its accuracy, stream ``ground_control``). The
+sensors are simulated from the truth; the solve sees only their readings and stated
+accuracies, never the truth or the scenario's jitter spectrum.
 """
 
 from __future__ import annotations
@@ -19,7 +21,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ground.aiding import Absolute, GyroModel, gyro_aiding, simulate_absolute, simulate_gyro
-from ground.network import NetworkSolution, smooth_network, solve_network
+from ground.network import (
+    NetworkSolution,
+    estimate_independent_fraction,
+    smooth_network,
+    solve_network,
+    with_independent_fraction,
+)
 from ground.record import MotionRecord
 from imc.wiring import streams
 from imc.wiring.build import Models
@@ -38,8 +46,10 @@ class Restitution:
     """The ground's record: ``record`` (the jitter at each tracker frame's mid-time, px, with
     its predicted error as ``sigma_px``), the network ``solution`` (covariance), the
     ``baselines`` used, the links used, what aided it, the run's ``links`` (for a re-solve
-    with fixes measured later: :func:`restitute`'s ``absolute``) and the ground control's
-    own figures ``control`` (a reference orthoimage's fixes)."""
+    with fixes measured later: :func:`restitute`'s ``absolute``), the ground control's
+    own figures ``control`` (a reference orthoimage's fixes) and the fraction of each link's
+    error found to be its own rather than its frames' pixels' ``independent_fraction``
+    (row, col; None where the links share nothing)."""
 
     record: MotionRecord
     solution: NetworkSolution
@@ -49,6 +59,7 @@ class Restitution:
     absolute: bool
     links: LinkTable | None = None
     control: dict = field(default_factory=dict)
+    independent_fraction: tuple[float, float] | None = None
 
     def predicted_px(self, t_s: np.ndarray) -> np.ndarray:
         """The record's predicted error (q, 2) px at times t_s (q,) s."""
@@ -149,6 +160,10 @@ def restitute(m: Models, links: LinkTable, control_t_s: np.ndarray | None = None
     t = m.frame_mid_s
     k_max = p.restitution.baselines or overlap_baselines(m)
     net = links.network(t, k_max)
+    fraction = None
+    if net.shared is not None and len(net.a) > len(t) + 2:  # redundant links tell the split
+        fraction = estimate_independent_fraction(net, len(t))
+        net = with_independent_fraction(net, fraction)
     gyro = None
     aiding: list[str] = [] if absolute is None else ["orthoimage"]
     ifov = m.main_camera.focal_plane.ifov_rad
@@ -174,4 +189,6 @@ def restitute(m: Models, links: LinkTable, control_t_s: np.ndarray | None = None
     s = sol.s_px if sol.s_px.ndim == 2 else sol.s_px[..., 0]
     record = MotionRecord(t, s, np.ones(len(t), bool), np.maximum(sol.sigma_px, 1e-6))
     return Restitution(record, sol, int(k_max), int(net.valid.sum()), tuple(aiding),
-                       absolute is not None, links)
+                       absolute is not None, links,
+                       independent_fraction=None if fraction is None
+                       else (float(fraction[0]), float(fraction[1])))

@@ -2,8 +2,9 @@
 
 ``rendered``: Mitsuba renders every tracker frame with the orbit, attitude and the stage's
 trajectory inside the exposure; ``texture``: the scene's albedo, seen once through the camera
-model, warped by the true motion field (affine, from the camera model) and the stage, blurred
-over the exposure, the optics and the sensor noise applied, in numpy; both are tracked by the
+model at t = 0, each pixel showing the ground point the true camera (and the stage) puts
+there at each instant of the exposure, averaged over it, the optics and the sensor noise
+applied, in numpy; both are tracked by the
 real correlator (BlockTracker), cut where orbit and attitude predict the blocks. ``analytic``:
 no images, the true block shifts plus the correlator's predicted noise
 (compensation.analytic_plant.AnalyticPlant). The loop code is the same for all three.

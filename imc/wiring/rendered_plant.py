@@ -277,9 +277,12 @@ class TexturePlant(TrackerPlant):
         ts = self.times.ravel()
         ts = ts[np.unique(np.linspace(0, len(ts) - 1, min(len(ts), 64)).astype(int))]
         src = self._sources(edge[None], ts, np.zeros((len(ts), 2)))  # (q, E, 2)
-        reach = np.max(np.abs(src - edge[None]), axis=(0, 1))
-        self.margin = np.ceil(reach).astype(int) + margin_px  # (rows, cols)
-        self.base = spline_filter(base_image(m, self.margin), order=3)
+        size = np.array([fp.rows, fp.cols]) - 1
+        # before the sensor's first row (col) and after its last: a scan's content comes
+        # from one side only
+        self.margin = np.ceil(np.maximum(-src.min(axis=(0, 1)), 0.0)).astype(int) + margin_px
+        after = np.ceil(np.maximum(src.max(axis=(0, 1)) - size, 0.0)).astype(int) + margin_px
+        self.base = spline_filter(base_image(m, self.margin, after), order=3)
 
     def _sources(self, pixels: np.ndarray, t_s: np.ndarray, stage_px: np.ndarray
                  ) -> np.ndarray:
@@ -323,15 +326,19 @@ class TexturePlant(TrackerPlant):
         return acc.reshape(src.shape[:-1]).mean(axis=0)
 
 
-def base_image(m: Models, margin_px) -> np.ndarray:
+def base_image(m: Models, margin_px, after_px=None) -> np.ndarray:
     """The scene's albedo at every tracker pixel at t = 0 (through the camera model and the
-    DEM), with ``margin_px`` (rows, cols) around the sensor; the albedo is smoothed to the
-    ground sample distance first (no aliasing)."""
+    DEM), with ``margin_px`` (rows, cols) before the sensor's first row and column and
+    ``after_px`` (default: the same) after its last; the albedo is smoothed to the ground
+    sample distance first (no aliasing). Pixel (r, c) of the sensor is element
+    (r + margin rows, c + margin cols)."""
     from scipy.ndimage import gaussian_filter, map_coordinates
 
     cam, fp, terrain = m.camera, m.camera.focal_plane, m.terrain
     mr, mc = (int(v) for v in np.broadcast_to(margin_px, (2,)))
-    gr, gc = np.mgrid[-mr:fp.rows + mr, -mc:fp.cols + mc]
+    ar, ac = (int(v) for v in np.broadcast_to(margin_px if after_px is None else after_px,
+                                              (2,)))
+    gr, gc = np.mgrid[-mr:fp.rows + ar, -mc:fp.cols + ac]
     pts = cam.ground_points(np.stack([gr, gc], axis=-1).astype(np.float64),
                             float(m.frame_mid_s[0]), terrain.height_at)
     alb = terrain.albedo

@@ -330,6 +330,6 @@ def _fields_of(sc: Scenario, part: str) -> str:
                 "process)")
     if part == "plant":
         return ("camera.tracker.rows x cols, duration_s and the image's motion (the texture "
-                "plant's motion maps and margins; attitude.mode, attitude.jitter)")
+                "plant's t = 0 view and its margins; attitude.mode, attitude.jitter)")
     return part
 

@@ -326,7 +326,8 @@ class TexturePlant(TrackerPlant):
         return acc.reshape(src.shape[:-1]).mean(axis=0)
 
 
-def base_image(m: Models, margin_px, after_px=None) -> np.ndarray:
+def base_image(m: Models, margin_px: int | np.ndarray,
+               after_px: int | np.ndarray | None = None) -> np.ndarray:
     """The scene's albedo at every tracker pixel at t = 0 (through the camera model and the
     DEM), with ``margin_px`` (rows, cols) before the sensor's first row and column and
     ``after_px`` (default: the same) after its last; the albedo is smoothed to the ground

@@ -861,7 +861,8 @@ class CompensationConfig(_Model):
 
 class PlantConfig(_Model):
     """What stands for the world the tracker looks at: rendered (Mitsuba frames), texture
-    (the scene's albedo warped by the true motion field, numpy; the real correlator) or
+    (the scene's albedo, each pixel showing the ground point the camera model puts there;
+    numpy; the real correlator) or
     analytic (no images: measurements = truth + noise of the correlator's predicted sigma).
     The loop is the same for all three."""
 

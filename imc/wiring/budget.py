@@ -35,6 +35,11 @@ TERRAIN_BYTES_PER_TEXEL = {"procedural": 95.0, "urban": 75.0, "rural": 170.0,
 #: the cloud layer's generation, bytes per cell; its Mitsuba mesh, bytes per cell
 CLOUD_BYTES_PER_CELL = 75.0
 CLOUD_MESH_BYTES_PER_CELL = 48.0
+#: the texture plant's albedo image of the t = 0 view, bytes per pixel at its build's peak
+#: (the rays through the DEM; measured with tracemalloc: 810 MB for smallsat_pushbroom's
+#: 13,896 x 292 px), and the flow's largest across-track share (a crab of ~4 degrees)
+TEXTURE_BYTES_PER_BASE_PX = 200.0
+CRAB = 0.07
 #: the interpreter with numpy, scipy, numba, matplotlib (validate, analytic and texture runs)
 #: and with Mitsuba / Dr.Jit (rendered runs). Measured (VmHWM, 128^2 tracker, 0.1 s, no report,
 #: no blur images; numpy 2.4, mitsuba 3.9): 439 MB analytic, 516 MB rendered
@@ -186,9 +191,10 @@ def _tdi_line_rate_hz(sc: Scenario) -> float:
     return v / gsd
 
 
-def _reach_px(sc: Scenario) -> float:
-    """How far (px) the image moves over the run, roughly: the ground's flow when scanning,
-    plus the jitter's amplitudes (the texture plant's margins)."""
+def _reach_px(sc: Scenario) -> tuple[float, float]:
+    """How far (px) the image moves over the run, roughly (the texture plant's margins): the
+    ground's flow when scanning (along the rows, from one side) and the jitter's amplitudes
+    plus a margin (on both sides of each axis)."""
     c = sc.camera
     ifov = c.pixel_pitch_m / c.focal_length_m
     v, gsd = _ground_flow(sc)
@@ -203,7 +209,7 @@ def _reach_px(sc: Scenario) -> float:
     amp += sum(px(h.amplitude_urad, h.amplitude_px) * (1.0 + abs(w.speed_rate_hz_per_s)
                                                       * sc.duration_s / w.speed_hz) ** 2
                for w in j.wheels for h in w.harmonics)
-    return flow + amp + 32.0
+    return flow, amp + 32.0
 
 
 def estimate_run(sc: Scenario) -> RunEstimate:
@@ -237,10 +243,13 @@ def estimate_run(sc: Scenario) -> RunEstimate:
         parts["renderer"] = (8.0 * texels + 48.0 * dem_nodes + CLOUD_MESH_BYTES_PER_CELL * cells
                              + px * (24.0 + 4.0 * sc.scene.spp))
     elif fidelity == "texture":
-        n_key = sc.duration_s / 0.1 + 2
-        reach = _reach_px(sc)
-        parts["plant"] = (px * (64.0 + 8.0 * n_key) + 96.0 * frames * 4
-                          + 24.0 * (t.rows + 2 * reach) * (t.cols + 2 * reach))
+        # the albedo image of the t = 0 view over the sensor and its reach, built through
+        # the DEM at TEXTURE_BYTES_PER_BASE_PX at its peak; across track the flow's share
+        # without yaw steering (Earth's rotation crabs it by up to ~4 degrees)
+        flow, amp = _reach_px(sc)
+        crab = 0.0 if sc.attitude.yaw_steering or sc.orbit.kind == "aircraft" else CRAB
+        base_px = (t.rows + flow + 2 * amp) * (t.cols + 2 * (amp + crab * flow))
+        parts["plant"] = px * 64.0 + 96.0 * frames * 4 + TEXTURE_BYTES_PER_BASE_PX * base_px
     if sc.metrics.blur_images and not IMAGERS[sc.camera.main_imager.kind].scanning:
         # imc.wiring.product.picture_study: Mitsuba (whatever the plant), the target tile's
         # texture, a BLUR_PATCH_PX square frame product of the scene and the target at
@@ -321,6 +330,6 @@ def _fields_of(sc: Scenario, part: str) -> str:
                 "process)")
     if part == "plant":
         return ("camera.tracker.rows x cols, duration_s and the image's motion (the texture "
-                "plant's motion maps and margins; attitude.mode, attitude.jitter)")
+                "plant's t = 0 view and its margins; attitude.mode, attitude.jitter)")
     return part
 

@@ -351,9 +351,11 @@ def margin_of(path: str, bound: BoundConfig, v: np.ndarray) -> np.ndarray:
 
 
 def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
-             crlb_px: float | None = None, workers: int = 1) -> Candidates:
+             crlb_px: float | None = None, workers: int = 1, fast: bool = True
+             ) -> Candidates:
     """Every candidate of the free parameters predicted, with margins, feasibility, the
-    limiting requirement and the cost."""
+    limiting requirement and the cost; ``fast`` False: the reference evaluation (each loop
+    alone, :func:`imc.workflow.predict.predict_loops`'s reference)."""
     cfg, base = design.config, design.base
     free, w = cfg.free, cfg.cost
     t0 = time.perf_counter()
@@ -364,7 +366,7 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
     radiometric = base.camera.tracker.signal == "radiometric"
     loops = loop_choices(free)
     preds = predict_loops(loops, base, dist, lock="loop.lock.analytic_s" in cfg.requirements,
-                          workers=workers, progress=progress)
+                          workers=workers, progress=progress, fast=fast)
     loop_s = time.perf_counter() - t0
     # the candidates: each loop x blocks x counts x strokes x ground
     cols: dict[str, list] = {k: [] for k in ("loop", "stroke_px", "block_px", "n_blocks",

@@ -540,8 +540,9 @@ def niirs_losses(m, preds: list, li: np.ndarray, ok: np.ndarray,
     exposure's mean); NaN for a refused loop."""
     ni = NiirsInputs.from_models(m)
     out = np.full(len(li), np.nan)
-    for i in np.flatnonzero(ok):
-        out[i] = ni.loss(preds[li[i]].mtf_det_curve, blur_px2[i])[0]
+    for j in np.unique(li[ok]):  # each loop's motion MTF with its candidates' variances
+        sel = np.flatnonzero(ok & (li == j))
+        out[sel] = ni.losses(preds[j].mtf_det_curve, blur_px2[sel])[0]
     return out
 
 

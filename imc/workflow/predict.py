@@ -1096,14 +1096,25 @@ class NiirsInputs:
         motion MTF ``motion_mtf`` (F, 2) at :data:`NIIRS_FREQS` times the Gaussian of the
         random and noise residual of variance ``var_px2`` (2,) px^2, times the static
         system MTF; the GSD, SNR and elevation unchanged."""
+        loss, rer = self.losses(motion_mtf, np.asarray(var_px2, float)[None, :])
+        return float(loss[0]), rer[0]
+
+    def losses(self, motion_mtf: np.ndarray, var_px2: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`loss` of one motion MTF ``motion_mtf`` (F, 2) with each of the residual
+        variances ``var_px2`` (n, 2) px^2: the NIIRS losses (n,) (inf where an RER is not
+        positive) and the RERs (n, 2); the static product's NIIRS computed once."""
         from ground.quality import niirs_giqe5
 
         f = NIIRS_FREQS
-        gauss = np.exp(-2.0 * np.pi**2 * np.asarray(var_px2, float)[None, :] * f[:, None] ** 2)
-        rer = rer_from_mtf(f, (self.static_mtf[:, None] * motion_mtf * gauss).T)
+        var = np.asarray(var_px2, float)
+        gauss = np.exp(-2.0 * np.pi**2 * var[:, None, :] * f[None, :, None] ** 2)
+        rer = rer_from_mtf(f, np.swapaxes(self.static_mtf[None, :, None] * motion_mtf[None]
+                                          * gauss, 1, 2))
         r0 = self.rer_static()
-        if not np.all(rer > 0):
-            return np.inf, rer
         n0 = niirs_giqe5(r0, r0, self.gsd_m, self.snr, self.elevation_rad)
-        n1 = niirs_giqe5(rer[0], rer[1], self.gsd_m, self.snr, self.elevation_rad)
-        return float(n0 - n1), rer
+        out = np.full(len(var), np.inf)
+        for i in np.flatnonzero(np.all(rer > 0, axis=1)):  # pyBSM's GIQE 5 takes scalars
+            out[i] = n0 - niirs_giqe5(rer[i, 0], rer[i, 1], self.gsd_m, self.snr,
+                                      self.elevation_rad)
+        return out, rer

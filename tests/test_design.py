@@ -165,7 +165,7 @@ def test_the_fast_search_equals_the_reference_evaluation_on_a_reduced_space():
               "controller": ["integrator", "kalman"], "bandwidth_hz": [3, 20],
               "stage": ["none", "ideal", "piezo"], "piezo_resonance_hz": [357],
               "piezo_stroke_px": [2.5, 9]}))
-    fast, ref = evaluate(d), evaluate(d, fast=False)
+    fast, ref = evaluate(d, workers=2), evaluate(d, fast=False)  # the workers: 6 groups
     assert fast.n_loops == 2 * (1 + 2 * 2 + 2 * 2) and len(fast) == len(ref)
     for path, v in ref.predicted.items():
         np.testing.assert_allclose(fast.predicted[path], v, rtol=1e-9, atol=0.0,

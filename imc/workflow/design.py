@@ -368,81 +368,81 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
     radiometric = base.camera.tracker.signal == "radiometric"
     loops = loop_choices(free)
     # the loops on the workers; the base's models and the tracker's bounds meanwhile here
-    jobs = LoopJobs(loops, base, dist, lock="loop.lock.analytic_s" in cfg.requirements,
-                    workers=workers, progress=progress, fast=fast)
-    # the candidates: each loop x blocks x counts x strokes x ground
-    cols: dict[str, list] = {k: [] for k in ("loop", "stroke_px", "block_px", "n_blocks",
-                                             "ground")}
-    strokes = _values(free.piezo_stroke_px)
-    for li, ch in enumerate(loops):
-        st = strokes if ch.stage == "piezo" else [0.0]
-        for b, n, s, g in itertools.product(free.block_px, free.n_blocks, st, free.ground):
-            cols["loop"].append(li)
-            cols["stroke_px"].append(s)
-            cols["block_px"].append(b)
-            cols["n_blocks"].append(n)
-            cols["ground"].append(g)
-    li = np.array(cols["loop"], int)
-    b = np.array(cols["block_px"], float)
-    nb = np.array(cols["n_blocks"], float)
-    stroke = np.array(cols["stroke_px"], float)
-    ground = np.array(cols["ground"], object)
-    rate = np.array([c.rate_hz for c in loops])[li]
-    stage = np.array([c.stage for c in loops], object)[li]
-    ctl = np.array([c.controller for c in loops], object)[li]
-    bw = np.array([c.bandwidth_hz for c in loops])[li]
-    res = np.array([c.resonance_hz for c in loops])[li]
-    # the tracker: bound x efficiency x (b0 / b) / sqrt(n); radiometric signal: shot noise
-    # with exposure
-    efficiency = correlator_efficiency(cfg.verify.fidelity, base.scene.kind)
-    from imc.wiring.build import build_models
+    with LoopJobs(loops, base, dist, lock="loop.lock.analytic_s" in cfg.requirements,
+                  workers=workers, progress=progress, fast=fast) as jobs:
+        # the candidates: each loop x blocks x counts x strokes x ground
+        cols: dict[str, list] = {k: [] for k in ("loop", "stroke_px", "block_px", "n_blocks",
+                                                 "ground")}
+        strokes = _values(free.piezo_stroke_px)
+        for li, ch in enumerate(loops):
+            st = strokes if ch.stage == "piezo" else [0.0]
+            for b, n, s, g in itertools.product(free.block_px, free.n_blocks, st, free.ground):
+                cols["loop"].append(li)
+                cols["stroke_px"].append(s)
+                cols["block_px"].append(b)
+                cols["n_blocks"].append(n)
+                cols["ground"].append(g)
+        li = np.array(cols["loop"], int)
+        b = np.array(cols["block_px"], float)
+        nb = np.array(cols["n_blocks"], float)
+        stroke = np.array(cols["stroke_px"], float)
+        ground = np.array(cols["ground"], object)
+        rate = np.array([c.rate_hz for c in loops])[li]
+        stage = np.array([c.stage for c in loops], object)[li]
+        ctl = np.array([c.controller for c in loops], object)[li]
+        bw = np.array([c.bandwidth_hz for c in loops])[li]
+        res = np.array([c.resonance_hz for c in loops])[li]
+        # the tracker: bound x efficiency x (b0 / b) / sqrt(n); radiometric signal: shot noise
+        # with exposure
+        efficiency = correlator_efficiency(cfg.verify.fidelity, base.scene.kind)
+        from imc.wiring.build import build_models
 
-    t_base = time.perf_counter()
-    if crlb is None:  # each block size's own bound on the base scene (its models built once)
-        m = build_models(base)
-        eff = efficiency.at(tracker_snr(m))
-        table = tracker_bounds(m, free.block_px, cfg.verify.fidelity)
-        per_block = np.array([table[int(x)][0] for x in b])
-        p_kept = np.array([table[int(x)][1] for x in b])
-        crlb0, kept0 = tracker_bound(m, cfg.verify.fidelity)  # the record's base bound
-        base_crlb = float(np.mean(crlb0) / np.sqrt(kept0))
-    else:  # a given bound at the base's block size, as one over the block's side
-        m = build_models(base, light=True)
-        eff = efficiency.at(tracker_snr(m))
-        per_block = crlb * (b0 / b)
-        p_kept = np.ones(len(b))
-        base_crlb = float(crlb)
-    rows, cols_px = base.camera.tracker.rows, base.camera.tracker.cols
-    grid_ok = nb <= np.floor(rows / b) * np.floor(cols_px / b)
-    if m.chain:  # a scanning tracker: each frame against the one before (the loop's chain)
-        # the blocks whose content reaches the next frame, placed and cut as the tracker
-        # does; the chain holds while the estimator finds enough of them valid in every
-        # frame: the expected number of frames of the run where it breaks stays below
-        # MAX_EXPECTED_BREAKS (it does not recover: the old reference's content leaves)
-        flow = image_flow_px_per_s(m)
-        n_eff = np.zeros(len(b))
-        for r_hz, b_px, n_b in set(zip(rate.tolist(), b.tolist(), nb.tolist(), strict=True)):
-            sel = (rate == r_hz) & (b == b_px) & (nb == n_b)
-            n_eff[sel] = chain_overlap(rows, cols_px, int(b_px), int(n_b), flow / r_hz) \
-                if grid_ok[sel][0] else 0
-        p_break = chain_break_probability(n_eff, nb, p_kept, min_valid_fraction(base))
-        overlap_ok = p_break < 1.0
-        breaks = p_break * rate * base.duration_s
-    else:  # a fixed reference: the record's network needs a valid block in every frame of
-        # the product's span (ground correction)
-        n_eff = nb.copy()
-        overlap_ok = np.ones(len(b), bool)
-        breaks = np.where(ground == "correction",
-                          (1.0 - p_kept) ** nb * rate * product_span_s(base), 0.0)
-    kept_ok = np.isfinite(per_block) & (breaks <= MAX_EXPECTED_BREAKS)
-    # the motion-field fit averages the blocks that overlap (each valid with p_kept: the
-    # per-block bound carries it)
-    sigma = np.where(kept_ok & overlap_ok, per_block, np.nan) * eff \
-        / np.sqrt(np.maximum(n_eff, 1.0))
-    if radiometric:
-        sigma = sigma * np.sqrt(rate / rate0)
-    base_s = time.perf_counter() - t_base
-    preds = jobs.results()
+        t_base = time.perf_counter()
+        if crlb is None:  # each block size's own bound on the base scene (its models built once)
+            m = build_models(base)
+            eff = efficiency.at(tracker_snr(m))
+            table = tracker_bounds(m, free.block_px, cfg.verify.fidelity)
+            per_block = np.array([table[int(x)][0] for x in b])
+            p_kept = np.array([table[int(x)][1] for x in b])
+            crlb0, kept0 = tracker_bound(m, cfg.verify.fidelity)  # the record's base bound
+            base_crlb = float(np.mean(crlb0) / np.sqrt(kept0))
+        else:  # a given bound at the base's block size, as one over the block's side
+            m = build_models(base, light=True)
+            eff = efficiency.at(tracker_snr(m))
+            per_block = crlb * (b0 / b)
+            p_kept = np.ones(len(b))
+            base_crlb = float(crlb)
+        rows, cols_px = base.camera.tracker.rows, base.camera.tracker.cols
+        grid_ok = nb <= np.floor(rows / b) * np.floor(cols_px / b)
+        if m.chain:  # a scanning tracker: each frame against the one before (the loop's chain)
+            # the blocks whose content reaches the next frame, placed and cut as the tracker
+            # does; the chain holds while the estimator finds enough of them valid in every
+            # frame: the expected number of frames of the run where it breaks stays below
+            # MAX_EXPECTED_BREAKS (it does not recover: the old reference's content leaves)
+            flow = image_flow_px_per_s(m)
+            n_eff = np.zeros(len(b))
+            for r_hz, b_px, n_b in set(zip(rate.tolist(), b.tolist(), nb.tolist(), strict=True)):
+                sel = (rate == r_hz) & (b == b_px) & (nb == n_b)
+                n_eff[sel] = chain_overlap(rows, cols_px, int(b_px), int(n_b), flow / r_hz) \
+                    if grid_ok[sel][0] else 0
+            p_break = chain_break_probability(n_eff, nb, p_kept, min_valid_fraction(base))
+            overlap_ok = p_break < 1.0
+            breaks = p_break * rate * base.duration_s
+        else:  # a fixed reference: the record's network needs a valid block in every frame of
+            # the product's span (ground correction)
+            n_eff = nb.copy()
+            overlap_ok = np.ones(len(b), bool)
+            breaks = np.where(ground == "correction",
+                              (1.0 - p_kept) ** nb * rate * product_span_s(base), 0.0)
+        kept_ok = np.isfinite(per_block) & (breaks <= MAX_EXPECTED_BREAKS)
+        # the motion-field fit averages the blocks that overlap (each valid with p_kept: the
+        # per-block bound carries it)
+        sigma = np.where(kept_ok & overlap_ok, per_block, np.nan) * eff \
+            / np.sqrt(np.maximum(n_eff, 1.0))
+        if radiometric:
+            sigma = sigma * np.sqrt(rate / rate0)
+        base_s = time.perf_counter() - t_base
+        preds = jobs.results()
     loop_s = time.perf_counter() - t0
     ok = np.array([p.ok for p in preds])[li]
     det = np.array([p.rms_det_px for p in preds], float)[li]

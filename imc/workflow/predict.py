@@ -800,11 +800,24 @@ class LoopJobs:
                 for f in as_completed(self._futures):
                     take(f.result())
             finally:
-                self._pool.shutdown(cancel_futures=True)
+                self.close()
         else:
             for j in self._jobs:
                 take(_predict_group(j))
         return out  # type: ignore[return-value]
+
+    def close(self) -> None:
+        """Stop the workers: the groups not started are cancelled (a caller that fails
+        before :meth:`results` does not wait for them)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = None
+
+    def __enter__(self) -> LoopJobs:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
 def predict_loops(choices: list[LoopChoice], base: Scenario, dist: Disturbance,

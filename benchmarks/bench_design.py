@@ -4,6 +4,13 @@ figures (and writes them under benchmarks/out/design/); never asserted in a test
 
     # the search: candidates per second (target: >= 10,000 candidates in <= 60 s, 2 cores)
     PYTHONPATH=. .venv/bin/python benchmarks/bench_design.py [--workers 2]
+    # the same on both bundled designs (each free bandwidth range densified to >= 10,000
+    # candidates), 1 and 2 workers, each evaluation in its own process (wall and CPU s,
+    # the workers' included, the load before and after), against another tree's code
+    # (e.g. a copy of main: `git archive main | tar -x -C /tmp/base`) run alternately,
+    # the two trees' predictions, feasible sets, Pareto fronts and choices compared
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_design.py --speed --workers 1 2 \
+        --compare /tmp/base
     # predicted against measured on the bundled scenarios (runs what --runs lacks)
     PYTHONPATH=. .venv/bin/python benchmarks/bench_design.py --bundled --runs DIR
     # the correlator's efficiency on scene classes and SNRs outside the bundled scenarios
@@ -217,6 +224,115 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+# ------------------------------------------------------------------------------ speed
+
+#: what one speed measurement runs in a fresh process of a tree (its code on PYTHONPATH):
+#: the design, its bandwidth range densified until it has at least MIN candidates, one
+#: evaluate; prints a JSON line (times, load) and saves the results (NPZ) to compare
+_SPEED_CHILD = r"""
+import dataclasses, json, os, resource, sys, time
+import numpy as np
+from imc.workflow.design import (RangeConfig, _values, choose, evaluate, load_design,
+                                 loop_choices, pareto_front)
+path, workers, min_n, out = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
+crlb = None if sys.argv[5] == "none" else float(sys.argv[5])
+d = load_design(path)
+def count(free):
+    per = len(free.block_px) * len(free.n_blocks) * len(free.ground)
+    k = len(_values(free.piezo_stroke_px))
+    return sum(per * (k if ch.stage == "piezo" else 1) for ch in loop_choices(free))
+free = d.config.free
+bw = free.bandwidth_hz
+while count(free) < min_n:  # the bandwidths denser, the same span
+    v = _values(bw)
+    bw = RangeConfig(min=min(v), max=max(v), n=len(v) + 1,
+                     scale=bw.scale if isinstance(bw, RangeConfig) else "log")
+    free = free.model_copy(update={"bandwidth_hz": bw})
+d = dataclasses.replace(d, config=d.config.model_copy(update={"free": free}))
+load0 = os.getloadavg()[0]
+c0, t0 = time.process_time(), time.perf_counter()
+c = evaluate(d, crlb_px=crlb, workers=workers)
+wall = time.perf_counter() - t0
+cpu = time.process_time() - c0
+kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+front = pareto_front(c.cost, c.worst)
+chosen, _ = choose(c, d.config.margin)
+np.savez(out, feasible=c.feasible, worst=c.worst, cost=c.cost, front=front,
+         chosen=-1 if chosen is None else chosen, limiting=c.limiting.astype(str),
+         **{"p:" + k: v for k, v in c.predicted.items()})
+print(json.dumps({"n": len(c), "loops": c.n_loops, "wall_s": wall, "cpu_s": cpu,
+                  "cpu_children_s": kids.ru_utime + kids.ru_stime, "loop_s": c.loop_s,
+                  "base_s": getattr(c, "base_s", None), "feasible": int(c.feasible.sum()),
+                  "front": len(front), "chosen": chosen, "load_before": load0,
+                  "load_after": os.getloadavg()[0], "bandwidths": len(_values(bw))}))
+"""
+
+
+def speed_run(tree: Path, design: str, workers: int, min_n: int, out: Path,
+              crlb_px: float | None) -> dict:
+    """One evaluation of a bundled design (``design``: its file's stem) in a fresh process
+    with ``tree``'s code: the child's JSON line (wall and CPU s, the workers' CPU, load)."""
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, PYTHONPATH=str(tree), RERUN_TELEMETRY_ENABLED="0")
+    path = tree / "scenarios" / "designs" / f"{design}.yaml"
+    res = subprocess.run([sys.executable, "-c", _SPEED_CHILD, str(path), str(workers),
+                          str(min_n), str(out), "none" if crlb_px is None else str(crlb_px)],
+                         env=env, cwd=tree, capture_output=True, text=True, check=True)
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def same_results(a: Path, b: Path) -> dict:
+    """Two speed runs' results compared: the largest relative difference of any predicted
+    value, and whether the feasible sets, limits, Pareto fronts and choices are equal."""
+    x, y = np.load(a), np.load(b)
+    rel = 0.0
+    for k in x.files:
+        if k.startswith("p:"):
+            u, v = x[k], y[k]
+            if not np.array_equal(np.isfinite(u), np.isfinite(v)):
+                return {"identical": False, "why": f"{k}: finite where the other is not"}
+            f = np.isfinite(v) & (v != 0)
+            if f.any():
+                rel = max(rel, float(np.max(np.abs(u[f] - v[f]) / np.abs(v[f]))))
+    eq = {k: bool(np.array_equal(x[k], y[k])) for k in ("feasible", "limiting", "front",
+                                                        "chosen", "cost")}
+    return {"max_relative_difference": rel, **eq, "identical": all(eq.values())}
+
+
+def speed(designs: list[str], workers: list[int], min_n: int, compare: Path | None,
+          crlb_px: float | None) -> list[dict]:
+    """Each design x workers evaluated with this tree's code and, alternately, with
+    ``compare``'s; printed as they come."""
+    trees = [("this", ROOT)] + ([("compare", compare)] if compare is not None else [])
+    rows = []
+    for design, nw in itertools.product(designs, workers):
+        pair = {}
+        for name, tree in trees:
+            out = OUT / f"speed_{design}_{nw}_{name}.npz"
+            r = speed_run(tree, design, nw, min_n, out, crlb_px)
+            r.update(design=design, workers=nw, tree=name, path=str(tree))
+            pair[name] = out
+            rows.append(r)
+            print(f"{design} {name} ({tree}), {nw} worker(s): {r['n']} candidates "
+                  f"({r['loops']} loops) in {r['wall_s']:.1f} s wall, "
+                  f"{r['cpu_s'] + r['cpu_children_s']:.1f} s CPU ({r['cpu_children_s']:.1f} "
+                  f"in workers): {r['n'] / r['wall_s']:.0f} candidates/s; load "
+                  f"{r['load_before']:.1f} -> {r['load_after']:.1f}; {r['feasible']} "
+                  f"feasible, front {r['front']}, chosen {r['chosen']}", flush=True)
+        if compare is not None:
+            a, b = rows[-2], rows[-1]
+            cmp = same_results(pair["this"], pair["compare"])
+            a["versus_compare"] = {"wall_ratio": b["wall_s"] / a["wall_s"], "cpu_ratio": (
+                b["cpu_s"] + b["cpu_children_s"]) / (a["cpu_s"] + a["cpu_children_s"]), **cmp}
+            print(f"  -> {design}, {nw} worker(s): compare / this: wall x"
+                  f"{a['versus_compare']['wall_ratio']:.1f}, CPU x"
+                  f"{a['versus_compare']['cpu_ratio']:.1f}; results {cmp}", flush=True)
+    return rows
+
+
 # ------------------------------------------------------------------------------ main
 
 
@@ -225,7 +341,14 @@ def main() -> None:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--design", default=str(ROOT / "scenarios" / "designs" /
                                             "quickstart_frame.yaml"))
-    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--workers", type=int, nargs="*", default=[2])
+    ap.add_argument("--speed", action="store_true", help="the search's speed on the bundled "
+                    "designs (--designs), each in its own process, against --compare")
+    ap.add_argument("--designs", nargs="*", default=["quickstart_frame",
+                                                     "smallsat_pushbroom"])
+    ap.add_argument("--min-candidates", type=int, default=10000)
+    ap.add_argument("--compare", default=None, help="another tree (its code on PYTHONPATH: "
+                    "e.g. a copy of main) to time alternately and compare results with")
     ap.add_argument("--crlb-px", type=float, default=None,
                     help="the tracker's bound per block (default: from the base scene)")
     ap.add_argument("--bundled", action="store_true", help="predicted against measured on "
@@ -260,15 +383,22 @@ def main() -> None:
         judged = [r for r in rows if r["judged"] and r["meets"] is not None]
         print(f"judged: {sum(r['meets'] for r in judged)} of {len(judged)} within target")
         return
+    if args.speed:
+        rows = speed(args.designs, args.workers, args.min_candidates,
+                     Path(args.compare) if args.compare else None, args.crlb_px)
+        (OUT / "speed.json").write_text(json.dumps(rows, indent=1))
+        return
     d = load_design(args.design)
-    t0 = time.perf_counter()
-    c = evaluate(d, crlb_px=args.crlb_px, workers=args.workers)
+    t0, c0 = time.perf_counter(), time.process_time()
+    c = evaluate(d, crlb_px=args.crlb_px, workers=args.workers[0])
     t_eval = time.perf_counter() - t0
     front = pareto_front(c.cost, c.worst)
     chosen, why = choose(c, d.config.margin)
-    print(f"{d.config.name}: {len(c)} candidates ({c.n_loops} loops, {args.workers} "
-          f"workers) in {t_eval:.1f} s (loops {c.loop_s:.1f} s, the base's bound included): "
-          f"{len(c) / t_eval:.0f} candidates/s; {int(c.feasible.sum())} feasible, "
+    print(f"{d.config.name}: {len(c)} candidates ({c.n_loops} loops, {args.workers[0]} "
+          f"workers) in {t_eval:.1f} s (the loops' predictions in at {c.loop_s:.1f} s; the "
+          f"base's models and bounds {c.base_s:.1f} s, overlapping them): "
+          f"{len(c) / t_eval:.0f} candidates/s; {time.process_time() - c0:.1f} CPU s in this "
+          f"process (workers not counted); {int(c.feasible.sum())} feasible, "
           f"{len(front)} on the Pareto front")
     if chosen is not None:
         print(f"chosen: {c.row(chosen)['cost']:.3g} cost, margin {c.worst[chosen]:.2f} ({why})")

@@ -43,6 +43,7 @@ from imc.workflow.predict import (
     SUPPORTED,
     Disturbance,
     LoopChoice,
+    LoopJobs,
     NiirsInputs,
     actuator_block,
     chain_break_probability,
@@ -52,7 +53,6 @@ from imc.workflow.predict import (
     image_flow_px_per_s,
     min_valid_fraction,
     nominal_line_rate_hz,
-    predict_loops,
     product_span_s,
     record_geometry_unit,
     residual_figures,
@@ -278,10 +278,12 @@ class Candidates:
     limiting: np.ndarray  # (n,) object: the requirement (or check) that limits
     worst: np.ndarray  # (n,) worst margin
     cost: np.ndarray
-    eval_s: float
+    eval_s: float  # the whole evaluation, s
     n_loops: int
-    loop_s: float
+    loop_s: float  # until the loops' predictions were all in (the base's part overlapping), s
     extras: dict[str, np.ndarray] = field(default_factory=dict)
+    base_crlb_px: float | None = None  # the tracker's bound per block at the base's size
+    base_s: float = 0.0  # the base's models and the tracker's bounds, s
 
     def __len__(self) -> int:
         return len(self.cost)
@@ -351,9 +353,11 @@ def margin_of(path: str, bound: BoundConfig, v: np.ndarray) -> np.ndarray:
 
 
 def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
-             crlb_px: float | None = None, workers: int = 1) -> Candidates:
+             crlb_px: float | None = None, workers: int = 1, fast: bool = True
+             ) -> Candidates:
     """Every candidate of the free parameters predicted, with margins, feasibility, the
-    limiting requirement and the cost."""
+    limiting requirement and the cost; ``fast`` False: the reference evaluation (each loop
+    alone, :func:`imc.workflow.predict.predict_loops`'s reference)."""
     cfg, base = design.config, design.base
     free, w = cfg.free, cfg.cost
     t0 = time.perf_counter()
@@ -363,31 +367,83 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
     rate0 = base.camera.tracker.frame_rate_hz
     radiometric = base.camera.tracker.signal == "radiometric"
     loops = loop_choices(free)
-    preds = predict_loops(loops, base, dist, lock="loop.lock.analytic_s" in cfg.requirements,
-                          workers=workers, progress=progress)
+    # the loops on the workers; the base's models and the tracker's bounds meanwhile here
+    with LoopJobs(loops, base, dist, lock="loop.lock.analytic_s" in cfg.requirements,
+                  workers=workers, progress=progress, fast=fast) as jobs:
+        # the candidates: each loop x blocks x counts x strokes x ground
+        cols: dict[str, list] = {k: [] for k in ("loop", "stroke_px", "block_px", "n_blocks",
+                                                 "ground")}
+        strokes = _values(free.piezo_stroke_px)
+        for li, ch in enumerate(loops):
+            st = strokes if ch.stage == "piezo" else [0.0]
+            for b, n, s, g in itertools.product(free.block_px, free.n_blocks, st, free.ground):
+                cols["loop"].append(li)
+                cols["stroke_px"].append(s)
+                cols["block_px"].append(b)
+                cols["n_blocks"].append(n)
+                cols["ground"].append(g)
+        li = np.array(cols["loop"], int)
+        b = np.array(cols["block_px"], float)
+        nb = np.array(cols["n_blocks"], float)
+        stroke = np.array(cols["stroke_px"], float)
+        ground = np.array(cols["ground"], object)
+        rate = np.array([c.rate_hz for c in loops])[li]
+        stage = np.array([c.stage for c in loops], object)[li]
+        ctl = np.array([c.controller for c in loops], object)[li]
+        bw = np.array([c.bandwidth_hz for c in loops])[li]
+        res = np.array([c.resonance_hz for c in loops])[li]
+        # the tracker: bound x efficiency x (b0 / b) / sqrt(n); radiometric signal: shot noise
+        # with exposure
+        efficiency = correlator_efficiency(cfg.verify.fidelity, base.scene.kind)
+        from imc.wiring.build import build_models
+
+        t_base = time.perf_counter()
+        if crlb is None:  # each block size's own bound on the base scene (its models built once)
+            m = build_models(base)
+            eff = efficiency.at(tracker_snr(m))
+            table = tracker_bounds(m, free.block_px, cfg.verify.fidelity)
+            per_block = np.array([table[int(x)][0] for x in b])
+            p_kept = np.array([table[int(x)][1] for x in b])
+            crlb0, kept0 = tracker_bound(m, cfg.verify.fidelity)  # the record's base bound
+            base_crlb = float(np.mean(crlb0) / np.sqrt(kept0))
+        else:  # a given bound at the base's block size, as one over the block's side
+            m = build_models(base, light=True)
+            eff = efficiency.at(tracker_snr(m))
+            per_block = crlb * (b0 / b)
+            p_kept = np.ones(len(b))
+            base_crlb = float(crlb)
+        rows, cols_px = base.camera.tracker.rows, base.camera.tracker.cols
+        grid_ok = nb <= np.floor(rows / b) * np.floor(cols_px / b)
+        if m.chain:  # a scanning tracker: each frame against the one before (the loop's chain)
+            # the blocks whose content reaches the next frame, placed and cut as the tracker
+            # does; the chain holds while the estimator finds enough of them valid in every
+            # frame: the expected number of frames of the run where it breaks stays below
+            # MAX_EXPECTED_BREAKS (it does not recover: the old reference's content leaves)
+            flow = image_flow_px_per_s(m)
+            n_eff = np.zeros(len(b))
+            for r_hz, b_px, n_b in set(zip(rate.tolist(), b.tolist(), nb.tolist(), strict=True)):
+                sel = (rate == r_hz) & (b == b_px) & (nb == n_b)
+                n_eff[sel] = chain_overlap(rows, cols_px, int(b_px), int(n_b), flow / r_hz) \
+                    if grid_ok[sel][0] else 0
+            p_break = chain_break_probability(n_eff, nb, p_kept, min_valid_fraction(base))
+            overlap_ok = p_break < 1.0
+            breaks = p_break * rate * base.duration_s
+        else:  # a fixed reference: the record's network needs a valid block in every frame of
+            # the product's span (ground correction)
+            n_eff = nb.copy()
+            overlap_ok = np.ones(len(b), bool)
+            breaks = np.where(ground == "correction",
+                              (1.0 - p_kept) ** nb * rate * product_span_s(base), 0.0)
+        kept_ok = np.isfinite(per_block) & (breaks <= MAX_EXPECTED_BREAKS)
+        # the motion-field fit averages the blocks that overlap (each valid with p_kept: the
+        # per-block bound carries it)
+        sigma = np.where(kept_ok & overlap_ok, per_block, np.nan) * eff \
+            / np.sqrt(np.maximum(n_eff, 1.0))
+        if radiometric:
+            sigma = sigma * np.sqrt(rate / rate0)
+        base_s = time.perf_counter() - t_base
+        preds = jobs.results()
     loop_s = time.perf_counter() - t0
-    # the candidates: each loop x blocks x counts x strokes x ground
-    cols: dict[str, list] = {k: [] for k in ("loop", "stroke_px", "block_px", "n_blocks",
-                                             "ground")}
-    strokes = _values(free.piezo_stroke_px)
-    for li, ch in enumerate(loops):
-        st = strokes if ch.stage == "piezo" else [0.0]
-        for b, n, s, g in itertools.product(free.block_px, free.n_blocks, st, free.ground):
-            cols["loop"].append(li)
-            cols["stroke_px"].append(s)
-            cols["block_px"].append(b)
-            cols["n_blocks"].append(n)
-            cols["ground"].append(g)
-    li = np.array(cols["loop"], int)
-    b = np.array(cols["block_px"], float)
-    nb = np.array(cols["n_blocks"], float)
-    stroke = np.array(cols["stroke_px"], float)
-    ground = np.array(cols["ground"], object)
-    rate = np.array([c.rate_hz for c in loops])[li]
-    stage = np.array([c.stage for c in loops], object)[li]
-    ctl = np.array([c.controller for c in loops], object)[li]
-    bw = np.array([c.bandwidth_hz for c in loops])[li]
-    res = np.array([c.resonance_hz for c in loops])[li]
     ok = np.array([p.ok for p in preds])[li]
     det = np.array([p.rms_det_px for p in preds], float)[li]
     var_rnd = np.array([p.var_rnd_px2 for p in preds], float)[li]
@@ -396,51 +452,6 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
     gain_blur = np.array([p.noise_gain_blur for p in preds], float)[li]
     mtf_det = np.array([p.mtf_det_worst for p in preds], float)[li]
     lock = np.array([p.lock_s for p in preds], float)[li]
-    # the tracker: bound x efficiency x (b0 / b) / sqrt(n); radiometric signal: shot noise
-    # with exposure
-    efficiency = correlator_efficiency(cfg.verify.fidelity, base.scene.kind)
-    from imc.wiring.build import build_models
-
-    if crlb is None:  # each block size's own bound on the base scene (its models built once)
-        m = build_models(base)
-        eff = efficiency.at(tracker_snr(m))
-        table = tracker_bounds(m, free.block_px, cfg.verify.fidelity)
-        per_block = np.array([table[int(x)][0] for x in b])
-        p_kept = np.array([table[int(x)][1] for x in b])
-    else:  # a given bound at the base's block size, as one over the block's side
-        m = build_models(base, light=True)
-        eff = efficiency.at(tracker_snr(m))
-        per_block = crlb * (b0 / b)
-        p_kept = np.ones(len(b))
-    rows, cols_px = base.camera.tracker.rows, base.camera.tracker.cols
-    grid_ok = nb <= np.floor(rows / b) * np.floor(cols_px / b)
-    if m.chain:  # a scanning tracker: each frame against the one before (the loop's chain)
-        # the blocks whose content reaches the next frame, placed and cut as the tracker
-        # does; the chain holds while the estimator finds enough of them valid in every
-        # frame: the expected number of frames of the run where it breaks stays below
-        # MAX_EXPECTED_BREAKS (it does not recover: the old reference's content leaves)
-        flow = image_flow_px_per_s(m)
-        n_eff = np.zeros(len(b))
-        for r_hz, b_px, n_b in set(zip(rate.tolist(), b.tolist(), nb.tolist(), strict=True)):
-            sel = (rate == r_hz) & (b == b_px) & (nb == n_b)
-            n_eff[sel] = chain_overlap(rows, cols_px, int(b_px), int(n_b), flow / r_hz) \
-                if grid_ok[sel][0] else 0
-        p_break = chain_break_probability(n_eff, nb, p_kept, min_valid_fraction(base))
-        overlap_ok = p_break < 1.0
-        breaks = p_break * rate * base.duration_s
-    else:  # a fixed reference: the record's network needs a valid block in every frame of
-        # the product's span (ground correction)
-        n_eff = nb.copy()
-        overlap_ok = np.ones(len(b), bool)
-        breaks = np.where(ground == "correction",
-                          (1.0 - p_kept) ** nb * rate * product_span_s(base), 0.0)
-    kept_ok = np.isfinite(per_block) & (breaks <= MAX_EXPECTED_BREAKS)
-    # the motion-field fit averages the blocks that overlap (each valid with p_kept: the
-    # per-block bound carries it)
-    sigma = np.where(kept_ok & overlap_ok, per_block, np.nan) * eff \
-        / np.sqrt(np.maximum(n_eff, 1.0))
-    if radiometric:
-        sigma = sigma * np.sqrt(rate / rate0)
     rms, total, mtf, blur = residual_figures(det, var_rnd, gain, sigma, mtf_det, var_rnd_blur,
                                              gain_blur)
     # the record's geometry after correction over the product's span (a TDI strip's lines)
@@ -474,7 +485,7 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
         "product.geometry.open.affine.rms_px": np.where(corr, geo[:, 1] * sigma, np.nan),
     }
     if NIIRS_PATH in cfg.requirements:
-        values[NIIRS_PATH] = niirs_losses(base, preds, li, ok, blur)
+        values[NIIRS_PATH] = niirs_losses(m, preds, li, ok, blur)
     reqs = list(cfg.requirements.items())
     predicted, margins = {}, []
     for path, bound in reqs:
@@ -517,21 +528,21 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
     return Candidates(columns, predicted, marg, feasible, names[k], worst, cost,
                       time.perf_counter() - t0, len(loops), loop_s,
                       {"sigma_px": sigma, "blocks_overlapping": n_eff,
-                       "block_valid_probability": p_kept, "expected_breaks": breaks})
+                       "block_valid_probability": p_kept, "expected_breaks": breaks},
+                      base_crlb, base_s)
 
 
-def niirs_losses(base: Scenario, preds: list, li: np.ndarray, ok: np.ndarray,
+def niirs_losses(m, preds: list, li: np.ndarray, ok: np.ndarray,
                  blur_px2: np.ndarray) -> np.ndarray:
     """Each candidate's predicted NIIRS loss (:class:`imc.workflow.predict.NiirsInputs`:
-    the base's product, the candidate loop's worst-exposure motion MTF and its noise and
-    random residual's variance ``blur_px2`` (n, 2) about an exposure's mean); NaN for a
-    refused loop."""
-    from imc.wiring.build import build_models
-
-    ni = NiirsInputs.from_models(build_models(base))
+    the base's product from its built models ``m``, the candidate loop's worst-exposure
+    motion MTF and its noise and random residual's variance ``blur_px2`` (n, 2) about an
+    exposure's mean); NaN for a refused loop."""
+    ni = NiirsInputs.from_models(m)
     out = np.full(len(li), np.nan)
-    for i in np.flatnonzero(ok):
-        out[i] = ni.loss(preds[li[i]].mtf_det_curve, blur_px2[i])[0]
+    for j in np.unique(li[ok]):  # each loop's motion MTF with its candidates' variances
+        sel = np.flatnonzero(ok & (li == j))
+        out[sel] = ni.losses(preds[j].mtf_det_curve, blur_px2[sel])[0]
     return out
 
 
@@ -997,7 +1008,7 @@ def run_design(design: Design, out_dir: Path, verify_runs: bool = True,
     from imc.io import atomic_write, write_json
 
     c = evaluate(design, progress, crlb_px=crlb_px, workers=workers)
-    crlb = base_crlb_px(design) if crlb_px is None else crlb_px
+    crlb = c.base_crlb_px if c.base_crlb_px is not None else base_crlb_px(design)
     front = pareto_front(c.cost, c.worst)
     chosen, reason = choose(c, design.config.margin)
     log(f"{len(c)} candidates ({c.n_loops} loops) predicted in {c.eval_s:.2f} s; "

@@ -33,6 +33,15 @@ models imcsim already has; what `imc design` searches with, and what
 - NIIRS loss (:class:`NiirsInputs`): GIQE 5 (:func:`ground.quality.niirs_giqe5`) of the RER
   of the static system MTF and of it times the worst exposure's motion MTF.
 
+The search (:class:`LoopJobs`) groups the loops by rate and stage: what a group shares is
+computed once (:class:`StageShare`: the actuator, the stage's response on each frequency
+grid, in closed form on its uniform time grid (:func:`linear_fourier`), the plant's
+polynomials there, the stage's response to the held commands at the metrics' times), a
+Kalman predictor's steady state once per rate and bandwidth (:class:`SharedSteadyKalman`),
+and each loop then costs its controller's polynomials on those grids. The predictions are
+those of :class:`compensation.analytic.LoopModel` alone (``fast=False``, the reference) to
+~1e-13 (tests/test_design.py).
+
 Not predicted (refused in a design's requirements): yaw jitter (a rotation about the line
 of sight), measured jitter series and suspensions.
 """
@@ -40,12 +49,14 @@ of sight), measured jitter series and suspensions.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from functools import cached_property, lru_cache
 
 import numpy as np
 
 from compensation.analytic import LoopModel
+from compensation.controllers import KalmanPredictor
 from compensation.metrics import motion_mtf
 from imc.scenario import Scenario, ScenarioError
 
@@ -275,10 +286,124 @@ def tracker_exposure_s(base: Scenario, rate_hz: float) -> float:
     return 1.0 / rate_hz if e is None or e > 1.0 / rate_hz else e
 
 
+def linear_fourier(t_s: np.ndarray, s: np.ndarray, omega: np.ndarray) -> np.ndarray | None:
+    """Integral of a trajectory s(t) linearly interpolated between uniformly spaced samples
+    (``t_s`` (N,) s, ``s`` (N,)), zero outside them, times exp(-j w t), at each angular
+    frequency ``omega`` (F,) rad/s > 0; None when the samples are not uniformly spaced.
+
+    What :func:`compensation.analytic._piecewise_fourier` integrates segment by segment, in
+    closed form on the uniform grid t_k = t_0 + k h: the sum is A(x) sum_k s_k e^{-j w t_k}
+    + B(x) sum_k (s_{k+1} - s_k) e^{-j w t_k}, x = j w h, A = h (1 - e^{-x}) / x,
+    B = h ((1 - e^{-x}) / x - e^{-x}) / x (their series below |x| = 0.05, where the closed
+    forms cancel), the two sums by baby-step giant-step (e^{-j w h (L q + p)} from F (L +
+    Q) exponentials and one matrix product, L Q >= N - 1): F (L + Q) exponentials instead
+    of 2 F N, and no recurrence, so the rounding stays at ~1e-11 of the largest value
+    (segment by segment in doubles it is ~1e-8 to 1e-7 at the lowest frequencies, against
+    the sum in extended precision)."""
+    t = np.asarray(t_s, np.float64)
+    n = len(t) - 1
+    if n < 2:
+        return None
+    h = (t[-1] - t[0]) / n
+    if not h > 0 or np.max(np.abs(t - (t[0] + h * np.arange(n + 1)))) > 1e-9 * h:
+        return None
+    w = np.asarray(omega, np.float64)
+    big = int(np.ceil(np.sqrt(n)))
+    small_n = int(np.ceil(n / big))
+    coef = np.zeros((2, small_n * big))
+    coef[0, :n] = s[:-1]
+    coef[1, :n] = np.diff(s)
+    e_p = np.exp(-1j * np.outer(w, h * np.arange(big)))  # (F, L)
+    e_q = np.exp(-1j * np.outer(w, t[0] + h * big * np.arange(small_n)))  # (F, Q)
+    inner = np.einsum("fl,cql->cfq", e_p, coef.reshape(2, small_n, big))
+    sums = np.einsum("cfq,fq->cf", inner, e_q)
+    x = 1j * w * h
+    r = np.exp(-x)
+    near = np.abs(x) < 0.05
+    xs = np.where(near, 1.0, x)
+    phi1 = (1.0 - r) / xs
+    g = (phi1 - r) / xs
+    ser1 = np.zeros_like(x)
+    ser2 = np.zeros_like(x)
+    for k in range(10):  # (1 - e^-x) / x and ((1 - e^-x) / x - e^-x) / x
+        ser1 = ser1 + (-x) ** k / math.factorial(k + 1)
+        ser2 = ser2 + (-1) ** k * (k + 1) / math.factorial(k + 2) * x**k
+    phi1 = np.where(near, ser1, phi1)
+    g = np.where(near, ser2, g)
+    return h * (phi1 * sums[0] + g * sums[1])
+
+
+@dataclass(frozen=True, eq=False)
+class PlantGrid:
+    """What every loop of one stage and timing shares on one frequency grid: the grid
+    ``f_hz`` (F,), x = z^-1 and x^n (the measurement's delay in ticks), the stage's response
+    H / T (:meth:`LoopModel.stage_response`), the exposure's averaging W, and the plant's
+    polynomials G and G_pq (:meth:`LoopModel.plant_polys`) evaluated at x."""
+
+    f_hz: np.ndarray
+    x: np.ndarray
+    x_n: np.ndarray
+    stage: np.ndarray
+    averaging: np.ndarray
+    g: np.ndarray
+    g_pq: np.ndarray
+
+
+class StageShare:
+    """The work a group of loops with one stage, rate, exposure and latency share (only the
+    controller differs): the plant on each frequency grid asked for (:class:`PlantGrid`,
+    per grid and Smith flag) and the stage's response to the held commands at each sample
+    time (:func:`held_response`), each computed once, on the group's first ask."""
+
+    def __init__(self) -> None:
+        self._grids: dict[tuple[bytes, bool], PlantGrid] = {}
+        self._held: dict[tuple[bytes, int], np.ndarray] = {}
+        self._actuators: dict[tuple, object] = {}
+
+    def actuator(self, choice: LoopChoice, base: Scenario):
+        """:func:`stage_actuator` of a choice, built once per rate, stage and resonance."""
+        key = (choice.rate_hz, choice.stage, choice.resonance_hz)
+        if key not in self._actuators:
+            self._actuators[key] = stage_actuator(choice, base)
+        return self._actuators[key]
+
+    def grid(self, model: LoopModel, f_hz) -> PlantGrid:
+        """The :class:`PlantGrid` of ``model``'s plant at frequencies ``f_hz`` (Hz)."""
+        f = np.atleast_1d(np.asarray(f_hz, np.float64))
+        smith = bool(getattr(model.controller, "smith", False))
+        key = (f.tobytes(), smith)
+        if key not in self._grids:
+            from compensation.controllers import polyval
+
+            n, phi = model.timing
+            x = 1.0 / model._z(f)
+            g, g_pq = model.plant_polys()
+            _, _, t, s, interp = model.pulse
+            h = linear_fourier(t, s, 2 * np.pi * f) if interp == "linear" else None
+            stage = (LoopModel.stage_response(model, f) if h is None else h / model.period_s)
+            self._grids[key] = PlantGrid(f, x, x**n, stage, LoopModel.averaging(model, f),
+                                         polyval(x, g), polyval(x, g_pq))
+        return self._grids[key]
+
+    def held(self, model: LoopModel, t_s: np.ndarray, n: int) -> np.ndarray:
+        """:func:`held_response` of ``model`` at ``t_s`` for ``n`` ticks, once."""
+        key = (np.asarray(t_s, np.float64).tobytes(), int(n))
+        if key not in self._held:
+            self._held[key] = held_response(model, t_s, n)
+        return self._held[key]
+
+
 @dataclass(frozen=True)
 class FastLoopModel(LoopModel):
-    """A LoopModel whose controller transfer function is computed once (a Kalman
-    predictor's steady state is a Riccati solve; the search asks for it many times)."""
+    """A LoopModel whose controller transfer function and plant polynomials are computed
+    once (a Kalman predictor's steady state is a Riccati solve; the search asks for them
+    many times), and whose plant on a frequency grid (stage response, exposure averaging,
+    plant polynomials) comes from ``share``, the :class:`StageShare` of the loops with the
+    same stage and timing: the same transfer functions as :class:`LoopModel`'s, the stage's
+    response integrated in closed form (:func:`linear_fourier`)."""
+
+    share: StageShare = dataclasses.field(default_factory=StageShare, compare=False,
+                                          hash=False, repr=False)
 
     @cached_property
     def _controller_tf(self) -> tuple[np.ndarray, np.ndarray, bool]:
@@ -288,22 +413,72 @@ class FastLoopModel(LoopModel):
         """(b, a, is_predictor) in z^-1, cached."""
         return self._controller_tf
 
+    @cached_property
+    def _plant_polys(self) -> tuple[np.ndarray, np.ndarray]:
+        return LoopModel.plant_polys(self)
 
-def loop_model(choice: LoopChoice, base: Scenario):
-    """The analytic LoopModel of a choice (None for stage 'none'), wired as
-    :func:`imc.wiring.build.build_loop` wires it."""
+    def plant_polys(self) -> tuple[np.ndarray, np.ndarray]:
+        """(G, G_pq) in z^-1 (:meth:`LoopModel.plant_polys`), cached."""
+        return self._plant_polys
+
+    def _controller_at(self, grid: PlantGrid) -> tuple[np.ndarray, np.ndarray]:
+        from compensation.controllers import polyval
+
+        b, a, predictor = self.controller_tf()
+        return polyval(grid.x, b) / polyval(grid.x, a), (grid.g_pq if predictor else grid.g)
+
+    def command_tf(self, f_hz) -> np.ndarray:
+        """U / D at frequencies f (:meth:`LoopModel.command_tf`)."""
+        grid = self.share.grid(self, f_hz)
+        c, lp = self._controller_at(grid)
+        return c * grid.x_n / (1.0 + c * lp)
+
+    def loop_tf(self, f_hz) -> np.ndarray:
+        """The loop transfer L at frequencies f (:meth:`LoopModel.loop_tf`)."""
+        c, lp = self._controller_at(self.share.grid(self, f_hz))
+        return c * lp
+
+    def stage_response(self, f_hz) -> np.ndarray:
+        """H(w) / T (:meth:`LoopModel.stage_response`, by :func:`linear_fourier`)."""
+        return self.share.grid(self, f_hz).stage.copy()
+
+    def averaging(self, f_hz) -> np.ndarray:
+        """W(w) (:meth:`LoopModel.averaging`), shared."""
+        return self.share.grid(self, f_hz).averaging.copy()
+
+
+def stage_actuator(choice: LoopChoice, base: Scenario):
+    """The actuator block of a choice (its stage, linearised: the stroke is checked apart),
+    wired as :func:`imc.wiring.build.build_loop` wires it."""
     from compensation.registry import make_block
     from imc.wiring.build import piezo_update_hz
 
-    if choice.stage == "none":
-        return None
-    period = 1.0 / choice.rate_hz
-    wired = {"field_point_px": (0.0, 0.0), "ramp_s": period, "rate_hz": choice.rate_hz}
-    act = actuator_block(choice, base, 1e3)  # linearised: the stroke is checked apart
+    wired = {"field_point_px": (0.0, 0.0), "ramp_s": 1.0 / choice.rate_hz,
+             "rate_hz": choice.rate_hz}
+    act = actuator_block(choice, base, 1e3)
     actuator = make_block("actuator", act.pop("kind"), act, wired)
     if getattr(actuator, "update_hz", 0.0) is None:
         actuator = dataclasses.replace(actuator, update_hz=piezo_update_hz(
             choice.rate_hz, actuator.resonance_hz, actuator.drive_top_hz))
+    return actuator
+
+
+def loop_model(choice: LoopChoice, base: Scenario, share: StageShare | None = None,
+               fast: bool = True):
+    """The analytic LoopModel of a choice (None for stage 'none'), wired as
+    :func:`imc.wiring.build.build_loop` wires it: a :class:`FastLoopModel` with ``share``
+    (the :class:`StageShare` of the choices of its rate and stage: their actuator built
+    once; None: its own) and a Kalman predictor's steady state shared
+    (:class:`SharedSteadyKalman`), or with ``fast`` False
+    :class:`compensation.analytic.LoopModel` itself (the reference)."""
+    from compensation.registry import make_block
+
+    if choice.stage == "none":
+        return None
+    share = share if share is not None else StageShare()
+    actuator = share.actuator(choice, base) if fast else stage_actuator(choice, base)
+    wired = {"field_point_px": (0.0, 0.0), "ramp_s": 1.0 / choice.rate_hz,
+             "rate_hz": choice.rate_hz}
     ctl = controller_block(choice, base)
     kind = ctl.pop("kind")
     if kind == "kalman":
@@ -311,8 +486,37 @@ def loop_model(choice: LoopChoice, base: Scenario):
     controller = make_block("controller", kind, ctl, wired)
     tr = base.compensation.transport
     latency = tr.latency_s + tr.latency_frames / choice.rate_hz
-    return FastLoopModel(choice.rate_hz, tracker_exposure_s(base, choice.rate_hz), latency,
-                     controller, actuator, 0.02)
+    args = (choice.rate_hz, tracker_exposure_s(base, choice.rate_hz), latency, controller,
+            actuator, 0.02)
+    if not fast:
+        return LoopModel(*args)
+    if type(controller) is KalmanPredictor:
+        controller = SharedSteadyKalman(**{f.name: getattr(controller, f.name)
+                                           for f in dataclasses.fields(controller) if f.init})
+    return FastLoopModel(*args[:3], controller, *args[4:], share=share)
+
+
+@dataclass(frozen=True)
+class SharedSteadyKalman(KalmanPredictor):
+    """A :class:`compensation.controllers.KalmanPredictor` whose steady state (its gain and
+    model at a period and noise: a Riccati iteration that does not depend on the lead) is
+    solved once per predictor less its lead (:func:`kalman_steady_state`): a search's loops
+    of one rate and bandwidth differ in their stage's lead alone."""
+
+    def steady_state(self, period_s: float, sigma_px: float, lines_hz=None, line_q=None):
+        """:meth:`KalmanPredictor.steady_state`, computed once per (predictor less its lead,
+        period s, sigma px) when the predictor's own lines are meant."""
+        if lines_hz is not None or line_q is not None:
+            return KalmanPredictor.steady_state(self, period_s, sigma_px, lines_hz, line_q)
+        return kalman_steady_state(dataclasses.replace(self, lead_s=None), float(period_s),
+                                   float(sigma_px))
+
+
+@lru_cache(maxsize=256)
+def kalman_steady_state(predictor: KalmanPredictor, period_s: float, sigma_px: float):
+    """:meth:`KalmanPredictor.steady_state` (K, Phi, Q, H) of ``predictor`` at a period (s)
+    and measurement noise (px), cached."""
+    return KalmanPredictor.steady_state(predictor, period_s, sigma_px)
 
 
 def exposure_windows(base: Scenario) -> tuple[float, float, float]:
@@ -345,10 +549,13 @@ def nominal_line_rate_hz(base: Scenario) -> float:
 
 
 def predict_loop(choice: LoopChoice, base: Scenario, dist: Disturbance,
-                 samples_per_window: int = 32, lock: bool = True) -> LoopPrediction:
+                 samples_per_window: int = 32, lock: bool = True,
+                 share: StageShare | None = None, fast: bool = True) -> LoopPrediction:
     """The loop's part of the predictions (see the module docstring); ``lock``: the lock
-    time too (an eigenvalue problem of the plant's order: skipped when not asked for)."""
-    return predict_model(loop_model(choice, base), base, dist,
+    time too (an eigenvalue problem of the plant's order: skipped when not asked for);
+    ``share``, ``fast``: as :func:`loop_model` takes them (``fast`` False: the reference,
+    every transfer function computed by :class:`compensation.analytic.LoopModel`)."""
+    return predict_model(loop_model(choice, base, share, fast), base, dist,
                          tracker_exposure_s(base, choice.rate_hz), samples_per_window, lock)
 
 
@@ -469,14 +676,21 @@ def sinusoid_residual(model, dist: Disturbance, duration_s: float, t_s: np.ndarr
     den[: len(a)] += a
     den[: len(lp)] += lp
     u = lfilter(num, den, d_k, axis=0)  # the command at each tick
+    h = (model.share.held(model, t_s, n) if isinstance(model, FastLoopModel)
+         else held_response(model, t_s, n))
+    return d_t - d0 - h @ u
+
+
+def held_response(model: LoopModel, t_s: np.ndarray, n: int) -> np.ndarray:
+    """The stage's position (T, n) px at times ``t_s`` (T,) s for one unit command held
+    from each of the ticks 0 .. n - 1 (:attr:`LoopModel.pulse`'s trajectory): the residual
+    of :func:`sinusoid_residual` is the motion less this times the commands."""
     _, _, th, sh, interp = model.pulse
-    lag = t_s[:, None] - np.arange(n)[None, :] * period
+    lag = np.asarray(t_s, float)[:, None] - np.arange(n)[None, :] * model.period_s
     if interp == "previous":
         idx = np.searchsorted(th, lag, side="right") - 1
-        h = np.where((idx >= 0) & (lag <= th[-1]), sh[np.clip(idx, 0, len(sh) - 1)], 0.0)
-    else:
-        h = np.interp(lag, th, sh, left=0.0, right=0.0)
-    return d_t - d0 - h @ u
+        return np.where((idx >= 0) & (lag <= th[-1]), sh[np.clip(idx, 0, len(sh) - 1)], 0.0)
+    return np.interp(lag, th, sh, left=0.0, right=0.0)
 
 
 def record_floor_px(dist: Disturbance, rate_hz: float, exposure_s: float,
@@ -529,41 +743,88 @@ def record_geometry_unit(rate_hz: float, duration_s: float, baselines: int = 1,
 
 
 def _predict_group(args) -> list[tuple[int, LoopPrediction]]:
-    group, base, dist, lock = args
-    return [(i, predict_loop(ch, base, dist, lock=lock)) for i, ch in group]
+    group, base, dist, lock, fast = args
+    share = StageShare()  # one rate and stage: the plant's work done once for the group
+    return [(i, predict_loop(ch, base, dist, lock=lock, share=share, fast=fast))
+            for i, ch in group]
+
+
+class LoopJobs:
+    """:func:`predict_loop` for every choice, grouped by (rate, stage, resonance) so what a
+    group shares (:class:`StageShare`) is computed once, on ``workers`` processes (fork),
+    started at construction so that the caller's own work overlaps them; :meth:`results`
+    collects them (with one worker it runs them then). The largest groups go first (the
+    workers then finish together); ``fast`` False: each loop alone with
+    :class:`compensation.analytic.LoopModel` (the reference the fast search is checked
+    against)."""
+
+    def __init__(self, choices: list[LoopChoice], base: Scenario, dist: Disturbance,
+                 lock: bool = True, workers: int = 1, progress=None, fast: bool = True
+                 ) -> None:
+        groups: dict[tuple, list[tuple[int, LoopChoice]]] = {}
+        for i, ch in enumerate(choices):
+            groups.setdefault((ch.rate_hz, ch.stage, ch.resonance_hz), []).append((i, ch))
+        order = sorted(groups, key=lambda k: (-len(groups[k]), -k[0]))
+        self._jobs = [(groups[k], base, dist, lock, fast) for k in order]
+        self._n = len(choices)
+        self._progress = progress
+        self._pool = None
+        self._futures: list = []
+        if workers > 1 and len(self._jobs) > 1:
+            import multiprocessing as mp
+            from concurrent.futures import ProcessPoolExecutor
+
+            import scipy.signal  # noqa: F401 - imported once here, not in each worker
+
+            self._pool = ProcessPoolExecutor(min(workers, len(self._jobs)),
+                                             mp_context=mp.get_context("fork"))
+            self._futures = [self._pool.submit(_predict_group, j) for j in self._jobs]
+
+    def results(self) -> list[LoopPrediction]:
+        """Every choice's prediction, in the choices' order."""
+        out: list[LoopPrediction | None] = [None] * self._n
+        done = 0
+
+        def take(pairs) -> None:
+            nonlocal done
+            for i, p in pairs:
+                out[i] = p
+                done += 1
+            if self._progress is not None:
+                self._progress(done, self._n)
+
+        if self._pool is not None:
+            from concurrent.futures import as_completed
+
+            try:
+                for f in as_completed(self._futures):
+                    take(f.result())
+            finally:
+                self.close()
+        else:
+            for j in self._jobs:
+                take(_predict_group(j))
+        return out  # type: ignore[return-value]
+
+    def close(self) -> None:
+        """Stop the workers: the groups not started are cancelled (a caller that fails
+        before :meth:`results` does not wait for them)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = None
+
+    def __enter__(self) -> LoopJobs:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
 def predict_loops(choices: list[LoopChoice], base: Scenario, dist: Disturbance,
                   lock: bool = True, workers: int = 1,
-                  progress=None) -> list[LoopPrediction]:
-    """:func:`predict_loop` for every choice; grouped by (rate, stage, resonance) so the
-    stage's response is computed once per group, on ``workers`` processes (fork)."""
-    groups: dict[tuple, list[tuple[int, LoopChoice]]] = {}
-    for i, ch in enumerate(choices):
-        groups.setdefault((ch.rate_hz, ch.stage, ch.resonance_hz), []).append((i, ch))
-    jobs = [(g, base, dist, lock) for g in groups.values()]
-    out: list[LoopPrediction | None] = [None] * len(choices)
-    done = 0
-    if workers > 1 and len(jobs) > 1:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
-        with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as ex:
-            futs = [ex.submit(_predict_group, j) for j in jobs]
-            for f in as_completed(futs):
-                for i, p in f.result():
-                    out[i] = p
-                    done += 1
-                if progress is not None:
-                    progress(done, len(choices))
-    else:
-        for j in jobs:
-            for i, p in _predict_group(j):
-                out[i] = p
-                done += 1
-            if progress is not None:
-                progress(done, len(choices))
-    return out  # type: ignore[return-value]
+                  progress=None, fast: bool = True) -> list[LoopPrediction]:
+    """:func:`predict_loop` for every choice (:class:`LoopJobs`, collected at once)."""
+    return LoopJobs(choices, base, dist, lock, workers, progress, fast).results()
 
 
 def residual_figures(det_px: np.ndarray, var_rnd_px2: np.ndarray, noise_gain: np.ndarray,
@@ -857,14 +1118,25 @@ class NiirsInputs:
         motion MTF ``motion_mtf`` (F, 2) at :data:`NIIRS_FREQS` times the Gaussian of the
         random and noise residual of variance ``var_px2`` (2,) px^2, times the static
         system MTF; the GSD, SNR and elevation unchanged."""
+        loss, rer = self.losses(motion_mtf, np.asarray(var_px2, float)[None, :])
+        return float(loss[0]), rer[0]
+
+    def losses(self, motion_mtf: np.ndarray, var_px2: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`loss` of one motion MTF ``motion_mtf`` (F, 2) with each of the residual
+        variances ``var_px2`` (n, 2) px^2: the NIIRS losses (n,) (inf where an RER is not
+        positive) and the RERs (n, 2); the static product's NIIRS computed once."""
         from ground.quality import niirs_giqe5
 
         f = NIIRS_FREQS
-        gauss = np.exp(-2.0 * np.pi**2 * np.asarray(var_px2, float)[None, :] * f[:, None] ** 2)
-        rer = rer_from_mtf(f, (self.static_mtf[:, None] * motion_mtf * gauss).T)
+        var = np.asarray(var_px2, float)
+        gauss = np.exp(-2.0 * np.pi**2 * var[:, None, :] * f[None, :, None] ** 2)
+        rer = rer_from_mtf(f, np.swapaxes(self.static_mtf[None, :, None] * motion_mtf[None]
+                                          * gauss, 1, 2))
         r0 = self.rer_static()
-        if not np.all(rer > 0):
-            return np.inf, rer
         n0 = niirs_giqe5(r0, r0, self.gsd_m, self.snr, self.elevation_rad)
-        n1 = niirs_giqe5(rer[0], rer[1], self.gsd_m, self.snr, self.elevation_rad)
-        return float(n0 - n1), rer
+        out = np.full(len(var), np.inf)
+        for i in np.flatnonzero(np.all(rer > 0, axis=1)):  # pyBSM's GIQE 5 takes scalars
+            out[i] = n0 - niirs_giqe5(rer[i, 0], rer[i, 1], self.gsd_m, self.snr,
+                                      self.elevation_rad)
+        return out, rer

@@ -710,20 +710,22 @@ def both_weights(y, spec, pbox, prow, cbox, crow, cscale, s2r, s2, shrink, alpha
 
 
 @nb.njit(**_JIT)
-def self_cross(wconj, spec, other, orow, s, y):
+def self_cross(wconj, spec, wrow, other, orow, s, y):
     """The weighted cross spectrum of a reference against itself under another window, less
     its noise x noise term: y = W conj(R) R' - s W, with W conj(R) ``wconj`` and R ``spec``
-    the reference's spectrum under one window (W = |W conj(R)| / |R|), R' rows ``orow`` (n,)
+    (rows ``wrow`` (n,)) the reference's spectrum under one window (W = |W conj(R)| / |R|),
+    R' rows ``orow`` (n,)
     of ``other`` its spectrum under the other window, and s (n,) the noise's expected product
     per bin (pixel variance times the sum of the two windows' product). Complex arrays
     (n, h, k) as their interleaved float32 views (n, h, 2k); y likewise."""
-    n, h, k2 = spec.shape
+    n = wrow.shape[0]
+    h, k2 = spec.shape[1], spec.shape[2]
     k = k2 // 2
     for b in range(n):
         sb = np.float32(s[b])
         for i in range(h):
-            wc = wconj[b, i]
-            r = spec[b, i]
+            wc = wconj[wrow[b], i]
+            r = spec[wrow[b], i]
             o = other[orow[b], i]
             yr = y[b, i]
             for j in range(k):

@@ -55,7 +55,10 @@ Two further modes of this tree alone (issue 35):
   two), with the load average before and after; each one's RMS error over the Cramer-Rao
   bound (valid results within 0.5 px) and the fraction of pairs that took the
   common-content passes. Before/after a change: run it with ``PYTHONPATH`` set to each tree
-  (the ratios to OpenCV, measured in the same process, are what compare).
+  (the ratios to OpenCV, measured in the same process, are what compare). With ``--base
+  DIR``: instead, the default path's accuracy on the same pairs through both trees
+  (:func:`paired_default`: strong, medium, photographs, low-contrast photographs, the smooth
+  1/f^beta family; valid and within 0.5 px, false-valid, RMS over the CRLB, re-windowed).
 """
 
 from __future__ import annotations
@@ -369,6 +372,51 @@ def opencv(rounds: int, seed: int, independent: bool = False) -> None:
     print(f"load average after: {os.getloadavg()}")
 
 
+def paired_default(pairs: int, seed: int) -> dict:
+    """The default path's accuracy on fixed draws (``--independent --base``): per set, the
+    fraction valid and within 0.5 px, false-valid (over the valid), RMS of the valid
+    results within 0.5 px (and over the CRLB where the clean blocks are known) and the
+    fraction re-windowed."""
+    from correlator.bounds import crlb_px
+    from correlator.core import measure_shift
+    from correlator.testimages import MEAN_LEVEL, image_pairs, powerlaw_images, texture_pairs
+    from imc.studies.correlator_peers import PHOTOS as LOW
+    from imc.studies.correlator_peers import photos
+
+    out = {}
+
+    def score(name, ref, cur, d, clean=None, snr=10.0):
+        r = measure_shift(ref, cur)
+        err = r.shift - d
+        bad = np.abs(err).max(axis=1) >= 0.5
+        ok = r.valid & ~bad
+        row = {"valid_within": float(ok.mean()),
+               "false_valid": float((r.valid & bad).sum() / max(r.valid.sum(), 1)),
+               "rms_px": _rms(err[ok]), "precise": float(r.precise.mean())}
+        if clean is not None:
+            row["rms_over_crlb"] = _rms(err[ok]) / _rms(crlb_px(clean, MEAN_LEVEL / snr)[ok])
+        out[name] = row
+
+    rng = np.random.default_rng(seed)
+    for t in ("strong", "medium"):
+        ref, cur, d, clean = texture_pairs(pairs, 128, rng, snr=10.0, texture=t,
+                                           return_clean=True)
+        score(t, ref, cur, d, clean)
+    for names, snr in ((("grass", "gravel"), 10.0), (("brick", "camera", "astronaut"), 10.0),
+                       (("grass", "gravel"), 1.6)):
+        ref, cur, d, clean = image_pairs(photos(names), pairs, 128, rng, snr=snr,
+                                         return_clean=True)
+        score(f"{' + '.join(names)}, SNR {snr:g}", ref, cur, d, clean, snr)
+    low = [(im - im.mean()) / im.std() * 0.12 * MEAN_LEVEL + MEAN_LEVEL for im in photos(LOW)]
+    ref, cur, d = image_pairs(low, pairs, 128, rng, snr=10.0)
+    score("low-contrast photographs", ref, cur, d)
+    for beta, c in ((2.5, 0.05), (2.5, 0.08), (3.0, 0.15), (3.0, 0.3), (3.5, 0.3), (3.5, 0.6)):
+        ref, cur, d = image_pairs(powerlaw_images(8, 384, beta, rng), pairs // 2, 128, rng,
+                                  snr=10.0, contrast=c)
+        score(f"1/f^{beta}, contrast {c}", ref, cur, d)
+    return out
+
+
 def _sub(tree: Path, *args: str) -> dict:
     env = {**os.environ, "PYTHONPATH": str(tree), "OMP_NUM_THREADS": "1"}
     res = subprocess.run([sys.executable, __file__, "--child", *args], env=env, check=True,
@@ -404,6 +452,21 @@ def main() -> None:
                     "photographs, this tree alone (see the module doc)")
     ap.add_argument("--child", nargs="*")
     a = ap.parse_args()
+    if a.independent and a.base is not None:
+        args = ("indacc", "--pairs", str(a.pairs), "--seed", str(a.seed))
+        res = {k: _sub(t, *args) for k, t in (("before", a.base), ("after", HERE))}
+        print("| pairs (128^2) | valid & within 0.5 px | false-valid | RMS (px) | RMS / CRLB | "
+              "re-windowed |  (before / after)")
+        print("|---|---|---|---|---|---|")
+        for k, b in res["before"].items():
+            f = res["after"][k]
+            crlb = (f"{b['rms_over_crlb']:.4f} / {f['rms_over_crlb']:.4f}"
+                    if "rms_over_crlb" in b else "-")
+            print(f"| {k} | {100 * b['valid_within']:.2f} / {100 * f['valid_within']:.2f} % | "
+                  f"{100 * b['false_valid']:.2f} / {100 * f['false_valid']:.2f} % | "
+                  f"{b['rms_px']:.4f} / {f['rms_px']:.4f} | {crlb} | "
+                  f"{100 * b['precise']:.1f} / {100 * f['precise']:.1f} % |")
+        return
     if a.opencv or a.independent:
         opencv(a.rounds, a.seed, independent=a.independent)
         return
@@ -418,9 +481,12 @@ def main() -> None:
             import correlator.core
 
             correlator.core.SMOOTH_FRACTION = a.smooth_fraction
-        res = (accuracy(a.pairs, a.noise_pairs, a.seed, json.loads(a.options))
-               if a.child[:1] == ["accuracy"]
-               else {"pairs_per_s": speed()})
+        if a.child[:1] == ["indacc"]:
+            res = paired_default(a.pairs, a.seed)
+        elif a.child[:1] == ["accuracy"]:
+            res = accuracy(a.pairs, a.noise_pairs, a.seed, json.loads(a.options))
+        else:
+            res = {"pairs_per_s": speed()}
         print(json.dumps(res))
         return
     trees = {"after": HERE} if a.base is None else {"before": a.base, "after": HERE}

@@ -46,6 +46,19 @@ Two further modes of this tree alone (issue 35):
   OpenCV one pair per call on one thread and on a pool of two; the medians of the per-round
   ratios to OpenCV's best of the two, and each one's RMS error over the Cramer-Rao bound.
   Needs ``cv2`` (the ``bench`` extra).
+- ``--independent``: the same against OpenCV with independent pairs as a user meets them
+  (issue 35): ``measure_shift`` on 256 pairs in batches of 64 (each pair its own reference),
+  one thread and both cores, and tracking as in ``--opencv``, on the strong and medium
+  textures and on natural photographs at their own contrast (:data:`PHOTOS`), SNR 10, shifts
+  within +-4 px, every estimator alternated in one process (``--rounds`` rounds, median and
+  best, the median of the per-round ratios to OpenCV's best of one thread and a pool of
+  two), with the load average before and after; each one's RMS error over the Cramer-Rao
+  bound (valid results within 0.5 px) and the fraction of pairs that took the
+  common-content passes. Before/after a change: run it with ``PYTHONPATH`` set to each tree
+  (the ratios to OpenCV, measured in the same process, are what compare). With ``--base
+  DIR``: instead, the default path's accuracy on the same pairs through both trees
+  (:func:`paired_default`: strong, medium, photographs, low-contrast photographs, the smooth
+  1/f^beta family; valid and within 0.5 px, false-valid, RMS over the CRLB, re-windowed).
 """
 
 from __future__ import annotations
@@ -269,34 +282,61 @@ def smooth(pairs: int, seed: int) -> None:
         f"{k} {v} of {total}" for k, v in valid.items()))
 
 
-def _opencv_rows(tex: str, cv: dict, rounds: int, rng: np.random.Generator) -> None:
-    """The ``--opencv`` table's rows of one texture (see the module doc)."""
+#: natural photographs of ``--independent`` (skimage.data, at their own contrast)
+PHOTOS = ("camera", "astronaut", "coffee", "chelsea", "brick", "grass", "gravel")
+
+
+def _opencv_rows(tex: str, cv: dict, rounds: int, rng: np.random.Generator,
+                 batch: int | None = None) -> None:
+    """The ``--opencv`` table's rows of one texture (see the module doc); ``batch``: the
+    independent pairs in calls of this many (``--independent``; else one call of 256), and
+    the texture may be ``photographs``."""
     from correlator.bounds import crlb_px
     from correlator.core import Correlator, measure_shift
-    from correlator.testimages import MEAN_LEVEL, texture_pairs
+    from correlator.testimages import MEAN_LEVEL, image_pairs, texture_pairs
 
     n_track, n_pairs = 64, 256
-    ref, cur, d, clean = texture_pairs(n_pairs, 128, rng, snr=10.0, texture=tex,
-                                       return_clean=True)
+    if tex == "photographs":
+        from imc.studies.correlator_peers import photos
+
+        ref, cur, d, clean = image_pairs(photos(PHOTOS), n_pairs, 128, rng, snr=10.0,
+                                         return_clean=True)
+    else:
+        ref, cur, d, clean = texture_pairs(n_pairs, 128, rng, snr=10.0, texture=tex,
+                                           return_clean=True)
     bound = crlb_px(clean, MEAN_LEVEL / 10.0)
     r64, c64 = ref.astype(np.float64), cur.astype(np.float64)
     track = {w: Correlator(ref[:n_track], workers=w) for w in (-1, 1)}
+    step = batch or n_pairs
+
+    def pairs(workers: int):
+        parts = [measure_shift(ref[i:i + step], cur[i:i + step], workers=workers)
+                 for i in range(0, n_pairs, step)]
+        return parts[0] if len(parts) == 1 else type(parts[0])(
+            *(None if getattr(parts[0], f) is None
+              else np.concatenate([getattr(p, f) for p in parts])
+              for f in parts[0].__dataclass_fields__))
+
+    per = f"batches of {step}" if batch else "256 pairs"
     calls = {
         "imcsim tracking, default, 2 threads": (lambda: track[-1].measure(cur[:n_track]),
                                                  n_track),
         "imcsim tracking, default, 1 thread": (lambda: track[1].measure(cur[:n_track]),
                                                 n_track),
-        "imcsim measure_shift, default, 2 threads": (lambda: measure_shift(ref, cur), n_pairs),
-        "imcsim measure_shift, default, 1 thread": (
-            lambda: measure_shift(ref, cur, workers=1), n_pairs),
+        f"imcsim measure_shift ({per}), default, 2 threads": (lambda: pairs(-1), n_pairs),
+        f"imcsim measure_shift ({per}), default, 1 thread": (lambda: pairs(1), n_pairs),
     }
     for name, fn in cv.items():
         calls[name] = (lambda fn=fn: fn(r64, c64), n_pairs)
-    acc = {}
+    acc, passes = {}, {}
     for name, (fn, n) in calls.items():  # also the warm-up call
         out = fn()
         shift = out.shift if hasattr(out, "shift") else out[0]
-        acc[name] = _rms(shift - d[:n]) / _rms(bound[:n])
+        valid = out.valid if hasattr(out, "valid") else np.ones(n, bool)
+        ok = valid & (np.abs(shift - d[:n]).max(axis=1) < 0.5)
+        acc[name] = _rms(shift[ok] - d[:n][ok]) / _rms(bound[:n][ok])
+        passes[name] = (f"{100 * np.mean(out.precise):.0f} %"
+                        if getattr(out, "precise", None) is not None else "-")
     rates = {k: [] for k in calls}
     for _ in range(rounds):  # alternated: a neighbour's load falls on every one alike
         for name, (fn, n) in calls.items():
@@ -307,11 +347,12 @@ def _opencv_rows(tex: str, cv: dict, rounds: int, rng: np.random.Generator) -> N
     for name in calls:
         r = np.array(rates[name])
         print(f"| {tex} | {name} | {np.median(r):,.0f} | {r.max():,.0f} | "
-              f"{np.median(r / best_cv):.2f}x | {acc[name]:.3f} |")
+              f"{np.median(r / best_cv):.2f}x | {acc[name]:.3f} |"
+              + (f" {passes[name]} |" if batch else ""))
 
 
-def opencv(rounds: int, seed: int) -> None:
-    """Print the ``--opencv`` table (see the module doc)."""
+def opencv(rounds: int, seed: int, independent: bool = False) -> None:
+    """Print the ``--opencv`` (or ``--independent``) table (see the module doc)."""
     from imc.studies.correlator_peers import peers
 
     cv = {n: fn for t in (1, 2) for n, fn in peers(t, hann=True).items()
@@ -319,13 +360,61 @@ def opencv(rounds: int, seed: int) -> None:
     if not cv:
         raise SystemExit("--opencv needs cv2 (pip install opencv-python-headless)")
     rng = np.random.default_rng(seed)
-    print(f"load average before: {os.getloadavg()}")
+    import correlator
+
+    print(f"tree: {Path(correlator.__file__).parent}; load average before: {os.getloadavg()}")
     print("| texture (SNR 10), 128^2 | estimator | per s (median of "
-          f"{rounds}) | best | ÷ OpenCV's best (median of per-round ratios) | RMS / CRLB |")
-    print("|---|---|---|---|---|---|")
-    for tex in ("strong", "medium"):
-        _opencv_rows(tex, cv, rounds, rng)
+          f"{rounds}) | best | ÷ OpenCV's best (median of per-round ratios) | RMS / CRLB |"
+          + (" re-windowed |" if independent else ""))
+    print("|---|---|---|---|---|---|" + ("---|" if independent else ""))
+    for tex in ("strong", "medium", "photographs") if independent else ("strong", "medium"):
+        _opencv_rows(tex, cv, rounds, rng, batch=64 if independent else None)
     print(f"load average after: {os.getloadavg()}")
+
+
+def paired_default(pairs: int, seed: int) -> dict:
+    """The default path's accuracy on fixed draws (``--independent --base``): per set, the
+    fraction valid and within 0.5 px, false-valid (over the valid), RMS of the valid
+    results within 0.5 px (and over the CRLB where the clean blocks are known) and the
+    fraction re-windowed."""
+    from correlator.bounds import crlb_px
+    from correlator.core import measure_shift
+    from correlator.testimages import MEAN_LEVEL, image_pairs, powerlaw_images, texture_pairs
+    from imc.studies.correlator_peers import PHOTOS as LOW
+    from imc.studies.correlator_peers import photos
+
+    out = {}
+
+    def score(name, ref, cur, d, clean=None, snr=10.0):
+        r = measure_shift(ref, cur)
+        err = r.shift - d
+        bad = np.abs(err).max(axis=1) >= 0.5
+        ok = r.valid & ~bad
+        row = {"valid_within": float(ok.mean()),
+               "false_valid": float((r.valid & bad).sum() / max(r.valid.sum(), 1)),
+               "rms_px": _rms(err[ok]), "precise": float(r.precise.mean())}
+        if clean is not None:
+            row["rms_over_crlb"] = _rms(err[ok]) / _rms(crlb_px(clean, MEAN_LEVEL / snr)[ok])
+        out[name] = row
+
+    rng = np.random.default_rng(seed)
+    for t in ("strong", "medium"):
+        ref, cur, d, clean = texture_pairs(pairs, 128, rng, snr=10.0, texture=t,
+                                           return_clean=True)
+        score(t, ref, cur, d, clean)
+    for names, snr in ((("grass", "gravel"), 10.0), (("brick", "camera", "astronaut"), 10.0),
+                       (("grass", "gravel"), 1.6)):
+        ref, cur, d, clean = image_pairs(photos(names), pairs, 128, rng, snr=snr,
+                                         return_clean=True)
+        score(f"{' + '.join(names)}, SNR {snr:g}", ref, cur, d, clean, snr)
+    low = [(im - im.mean()) / im.std() * 0.12 * MEAN_LEVEL + MEAN_LEVEL for im in photos(LOW)]
+    ref, cur, d = image_pairs(low, pairs, 128, rng, snr=10.0)
+    score("low-contrast photographs", ref, cur, d)
+    for beta, c in ((2.5, 0.05), (2.5, 0.08), (3.0, 0.15), (3.0, 0.3), (3.5, 0.3), (3.5, 0.6)):
+        ref, cur, d = image_pairs(powerlaw_images(8, 384, beta, rng), pairs // 2, 128, rng,
+                                  snr=10.0, contrast=c)
+        score(f"1/f^{beta}, contrast {c}", ref, cur, d)
+    return out
 
 
 def _sub(tree: Path, *args: str) -> dict:
@@ -358,10 +447,28 @@ def main() -> None:
                     "textures against scikit-image, this tree alone")
     ap.add_argument("--opencv", action="store_true", help="the default path's speed against "
                     "OpenCV's phaseCorrelate on the same pairs, this tree alone")
+    ap.add_argument("--independent", action="store_true", help="independent pairs in "
+                    "batches of 64 and tracking against OpenCV, on synthetic textures and "
+                    "photographs, this tree alone (see the module doc)")
     ap.add_argument("--child", nargs="*")
     a = ap.parse_args()
-    if a.opencv:
-        opencv(a.rounds, a.seed)
+    if a.independent and a.base is not None:
+        args = ("indacc", "--pairs", str(a.pairs), "--seed", str(a.seed))
+        res = {k: _sub(t, *args) for k, t in (("before", a.base), ("after", HERE))}
+        print("| pairs (128^2) | valid & within 0.5 px | false-valid | RMS (px) | RMS / CRLB | "
+              "re-windowed |  (before / after)")
+        print("|---|---|---|---|---|---|")
+        for k, b in res["before"].items():
+            f = res["after"][k]
+            crlb = (f"{b['rms_over_crlb']:.4f} / {f['rms_over_crlb']:.4f}"
+                    if "rms_over_crlb" in b else "-")
+            print(f"| {k} | {100 * b['valid_within']:.2f} / {100 * f['valid_within']:.2f} % | "
+                  f"{100 * b['false_valid']:.2f} / {100 * f['false_valid']:.2f} % | "
+                  f"{b['rms_px']:.4f} / {f['rms_px']:.4f} | {crlb} | "
+                  f"{100 * b['precise']:.1f} / {100 * f['precise']:.1f} % |")
+        return
+    if a.opencv or a.independent:
+        opencv(a.rounds, a.seed, independent=a.independent)
         return
     if a.tracking or a.smooth:
         if a.tracking:
@@ -374,9 +481,12 @@ def main() -> None:
             import correlator.core
 
             correlator.core.SMOOTH_FRACTION = a.smooth_fraction
-        res = (accuracy(a.pairs, a.noise_pairs, a.seed, json.loads(a.options))
-               if a.child[:1] == ["accuracy"]
-               else {"pairs_per_s": speed()})
+        if a.child[:1] == ["indacc"]:
+            res = paired_default(a.pairs, a.seed)
+        elif a.child[:1] == ["accuracy"]:
+            res = accuracy(a.pairs, a.noise_pairs, a.seed, json.loads(a.options))
+        else:
+            res = {"pairs_per_s": speed()}
         print(json.dumps(res))
         return
     trees = {"after": HERE} if a.base is None else {"before": a.base, "after": HERE}

@@ -162,6 +162,13 @@ ADAPT_MIN_PSR = 8.0
 ADAPT_MIN_CRLB_PX = 0.005
 ADAPT_MAX_BIAS_SIGMA = 10.0
 ADAPT_MAX_RHO = 0.95
+#: the default path sends a block to the passes before its first pass where its PSR is below
+#: ADAPT_MIN_PSR or the restoring ratio of its full-band correlation on the fixed windows
+#: (the detection's), at the band's estimate, is above ADAPT_MAX_RHO + EARLY_RHO_MARGIN
+#: (:meth:`Correlator._surely_precise`): on 1,900 blocks of 9 texture sets (synthetic,
+#: photographs at their own and at 12 % contrast, 1/f^2-1/f^3.5) 2 blocks above 0.955 would
+#: have kept their first pass, and 36-100 % of the blocks that take the passes skip it
+EARLY_RHO_MARGIN = 0.01
 #: the first pass's reference window leaves this much (px) of cur's flat region beyond the
 #: shift on either side, for the shift's own error
 FIRST_SAFETY_PX = 0.25
@@ -336,6 +343,14 @@ def _pass_windows(n: int, taper: float, lo: np.ndarray, hi: np.ndarray,
     return spectral.tukey_1d(n, taper, 0.5 * (lo + hi), 0.5 * (lo - hi) + shift)
 
 
+def _run_of(rows: np.ndarray) -> slice | None:
+    """The slice of ``rows`` (m,) where they are a run of consecutive blocks (an array's
+    rows then made in place, no copy), else None."""
+    if len(rows) and rows[-1] - rows[0] + 1 == len(rows) and np.all(np.diff(rows) == 1):
+        return slice(int(rows[0]), int(rows[-1]) + 1)
+    return None
+
+
 class _CurPower:
     """Box means of the cur blocks' power (n, h, k) float32 from their first common-content
     pass, the energies (n,) of the windows they were made with, and which are made (n,)."""
@@ -416,12 +431,14 @@ class Correlator:
         # first-pass references (ref's window moved to the shift), filled on demand alike
         self._fp_key = np.full((n, 4), -1, np.int64)
         self._fp_wconj: np.ndarray | None = None
-        self._fp_fw: np.ndarray | None = None
         self._fp_m = np.zeros((n, 3, 3))
         self._fp_bias = np.zeros((n, 2))
         # reference spectra under cur's window (the first pass's bias), filled on demand
         self._refc: np.ndarray | None = None
         self._refc_ready = np.zeros(n, bool)
+        # the detection weights' stand-in where a reference has none (_ref_terms' detect)
+        self._no_detect = (np.empty((0, h, k), np.float32),
+                           np.empty((0, len(lay.band_rows), lay.band_cols), np.float32))
         masked = o.detection == "masked" or (o.detection == "auto"
                                              and self.max_shift_px > min(h, w) / 4)
         # unwindowed reference blocks less their means: for the masked search, Lucas-Kanade
@@ -520,8 +537,7 @@ class Correlator:
                     self._pass_pbox = np.empty(self._ref_fw.shape, np.float32)
                 if cache and self._fp_wconj is None:
                     self._fp_wconj = np.empty_like(self._ref_wconj)
-                    self._fp_fw = np.empty_like(self._ref_fw)
-                    self._refc = np.empty_like(self._ref_wconj)
+                    self._refc = fftbackend.empty(self._ref_wconj.shape, np.complex64)
                 parts = self._parallel(
                     lambda s: self._measure(cur_arr[s], idx[s],
                                             None if pred is None else pred[s], cache), n)
@@ -542,29 +558,36 @@ class Correlator:
             return list(_pool().map(fn, chunks))
 
     def _prep(self, blocks: np.ndarray, blk: np.ndarray, wy: np.ndarray, wx: np.ndarray,
-              out: np.ndarray | None = None):
+              out: np.ndarray | None = None, usable: bool = True):
         """Blocks ``blk`` of ``blocks`` less their window-weighted means, times the window
         wy (1 or m, h) x wx (1 or m, w) (FFT-aligned float32, or into ``out``), and their
-        usable flags."""
+        usable flags (None with ``usable=False``: a block already judged, not read again for
+        its statistics)."""
         if out is None:
             out = fftbackend.empty((len(blk), *blocks.shape[1:]), np.float32)
-        stats = np.empty((len(blk), 4))
+        stats = np.empty((len(blk) if usable else 0, 4))
         kernels.prep_blocks(blocks, blk, np.ascontiguousarray(wy, dtype=np.float32),
                             np.ascontiguousarray(wx, dtype=np.float32), True, out, stats)
+        if not usable:
+            return out, None
         return out, _usable(stats[:, 0], stats[:, 1], stats[:, 2], stats[:, 3])
 
     def _ref_terms(self, spec: np.ndarray, energy: np.ndarray, out: tuple | None = None,
-                   pbox: np.ndarray | None = None):
+                   pbox: np.ndarray | None = None, detect: bool = True):
         """W conj(R) (n, h, k), the detection's weights over W at the outer frequencies
         (n, h, k) and on the band (n, hb, kb), CRLB sums (n, 3, 3) and noise variance (n,) of
         reference spectra (n, h, k) of windows with energies (n,) (or into the five arrays
-        ``out``); with ``pbox`` (n, h, k) float32, also the box means of |R|^2 into it."""
+        ``out``); with ``pbox`` (n, h, k) float32, also the box means of |R|^2 into it.
+        ``detect=False``: no detection weights (the two arrays have no blocks; a reference
+        that no detection reads)."""
         lay = self._lay
         g = lay.full
         n = len(spec)
         if out is None:
-            out = (np.empty(spec.shape, np.complex64), np.empty(spec.shape, np.float32),
-                   np.empty((n, len(lay.band_rows), lay.band_cols), np.float32),
+            nd = n if detect else 0
+            out = (np.empty(spec.shape, np.complex64),
+                   np.empty((nd, *spec.shape[1:]), np.float32),
+                   np.empty((nd, len(lay.band_rows), lay.band_cols), np.float32),
                    np.zeros((n, 3, 3)), np.empty(n))
         wconj, fw, bw, m, noise = out
         kernels.ref_spectra(spec.view(np.float32), lay.immerkaer, lay.immerkaer_norm, energy,
@@ -574,12 +597,21 @@ class Correlator:
                             np.empty((0, 1, 1), np.float32) if pbox is None else pbox)
         return out
 
-    def _cross(self, spec: np.ndarray, wconj: np.ndarray, fw: np.ndarray, rows: np.ndarray):
+    def _cross(self, spec: np.ndarray, wconj: np.ndarray, fw: np.ndarray | None,
+               rows: np.ndarray):
         """Weighted cross spectra y (n, h, k) of cur spectra against rows of ``wconj``, the
-        cur blocks' Immerkaer sums (n,) and the whitening floors (n,) (of ``fw`` y)."""
+        cur blocks' Immerkaer sums (n,) and the whitening floors (n,) (of ``fw`` y; both None
+        where ``fw`` is None: y alone)."""
         lay = self._lay
         n = len(spec)
         y = np.empty(spec.shape, np.complex64)
+        if fw is None:
+            none = np.empty(0)
+            kernels.cross_spectra(spec.view(np.float32), wconj.view(np.float32),
+                                  np.empty((0, 1, 1), np.float32),
+                                  np.asarray(rows, dtype=np.int64), lay.immerkaer, lay.outer_n,
+                                  y.view(np.float32), none, none)
+            return y, None, None
         noise_raw, floor = np.empty(n), np.empty(n)
         kernels.cross_spectra(spec.view(np.float32), wconj.view(np.float32), fw,
                               np.asarray(rows, dtype=np.int64), lay.immerkaer, lay.outer_n,
@@ -795,8 +827,12 @@ class Correlator:
         far = np.any(np.abs(d) > lay.margin, axis=1) & fin
         rho = np.full((n, 2), np.nan)  # the first pass and the passes set theirs
         precise = np.ones(n, bool) if o.rewindow else far.copy()
+        if o.rewindow is None:  # blocks certain to take the passes skip the first pass
+            near = np.flatnonzero(fin & ~far)
+            early = near[self._surely_precise(psr[near], self._restoring(y, near, d[near]))]
+            precise[early] = True  # their passes start from the band's estimate
         if o.rewindow is not True:
-            first = np.flatnonzero(fin & ~far)
+            first = np.flatnonzero(fin & ~precise)
             d[first], crlb[first], settled[first], rho[first], bias = self._first_pass(
                 first, ridx, cspec, noise, d, cache)
             if o.rewindow is None and len(first):  # adaptive: the passes where needed
@@ -810,7 +846,22 @@ class Correlator:
         rest = np.flatnonzero(~precise & np.isnan(rho[:, 0]))
         rho[rest] = self._restoring(y, rest, d[rest])
         settled = self._passes(idx, ridx, cur_arr, noise, d, crlb, rho, settled, cache)
+        if o.rewindow is None and len(early):  # sane: their result agrees with the detection
+            sane[early] = np.abs(d[early] - d0[early]).max(axis=1) < lay.q + 1
         return d, crlb, rho, sane & settled, psr, ambiguous, cells, precise
+
+    @staticmethod
+    def _surely_precise(psr: np.ndarray, rho: np.ndarray) -> np.ndarray:
+        """Which blocks (n,) :meth:`_needs_precise` sends to the common-content passes
+        whatever their first pass gives, judged before it from the full-band pass on the
+        fixed windows: a PSR ``psr`` (n,) below :data:`ADAPT_MIN_PSR` (the same PSR), or a
+        restoring ratio ``rho`` (n, 2) above the decision's limit by
+        :data:`EARLY_RHO_MARGIN` (a broad peak; NaN: not decided early). These blocks skip
+        the first pass (its two reference spectra, the window bias, its cross spectrum and
+        Newton): the passes start from the full-band estimate, as on the precise path."""
+        with np.errstate(invalid="ignore"):
+            return (psr < ADAPT_MIN_PSR) | (np.max(rho, axis=1) > ADAPT_MAX_RHO
+                                            + EARLY_RHO_MARGIN)
 
     @staticmethod
     def _needs_precise(crlb: np.ndarray, psr: np.ndarray, settled: np.ndarray,
@@ -852,18 +903,23 @@ class Correlator:
             key = mg.reshape(len(blk), 4)
             miss = np.flatnonzero(np.any(self._fp_key[rows] != key, axis=1))
             if len(miss):
-                wc, fw, mm, bias = self._window_reference(rows[miss], mg[miss], cache=True)
-                self._fp_wconj[rows[miss]] = wc
-                self._fp_fw[rows[miss]] = fw
-                self._fp_m[rows[miss]] = mm
-                self._fp_bias[rows[miss]] = bias
-                self._fp_key[rows[miss]] = key[miss]
-            src, fw, srow, m = self._fp_wconj, self._fp_fw, rows, self._fp_m[rows]
+                tgt = rows[miss]
+                run = _run_of(tgt)
+                if run is not None:  # a run of blocks (independent pairs): made in place
+                    self._window_reference(tgt, mg[miss], cache=True, out=(
+                        self._fp_wconj[run], self._fp_m[run], self._fp_bias[run]))
+                else:
+                    wc, mm, bias = self._window_reference(tgt, mg[miss], cache=True)
+                    self._fp_wconj[tgt] = wc
+                    self._fp_m[tgt] = mm
+                    self._fp_bias[tgt] = bias
+                self._fp_key[tgt] = key[miss]
+            src, srow, m = self._fp_wconj, rows, self._fp_m[rows]
             bias = self._fp_bias[rows]
         else:
-            src, fw, m, bias = self._window_reference(rows, mg)
+            src, m, bias = self._window_reference(rows, mg)
             srow = np.arange(len(blk))
-        y, _, _ = self._cross(cspec if len(blk) == len(cspec) else cspec[blk], src, fw, srow)
+        y = self._cross(cspec if len(blk) == len(cspec) else cspec[blk], src, None, srow)[0]
         b = np.arange(len(blk))
         d2, hess, step, _ = self._newton(y, b, d[blk], self.options.iterations)
         crlb = _crlb(m, noise[blk], hess, h * w)
@@ -871,10 +927,11 @@ class Correlator:
         return (d2 - np.where(np.isfinite(bias), bias, 0.0), crlb,
                 _settled(step, crlb, NEWTON_TOL_PX), rho, bias)
 
-    def _window_reference(self, rows: np.ndarray, mg: np.ndarray, cache: bool = False):
+    def _window_reference(self, rows: np.ndarray, mg: np.ndarray, cache: bool = False,
+                          out: tuple | None = None):
         """The first pass's reference terms of blocks ``rows`` windowed with zero margins
-        mg (m, 2, 2): W conj(R), the detection's weights, the CRLB sums, and the bias (m, 2)
-        px that the windows give the first pass's estimate.
+        mg (m, 2, 2): W conj(R) (m, h, k), the CRLB sums (m, 3, 3), and the bias (m, 2)
+        px that the windows give the first pass's estimate (or into the three arrays ``out``).
 
         ref's window is narrower than cur's, so the pass correlates a windowed block against
         an unwindowed one: sum w(x) s(x) s(x + e) peaks where its gradient
@@ -886,28 +943,54 @@ class Correlator:
         own correlation, a peak at lag 0 that would shrink the estimate) is removed
         (:func:`kernels.self_cross`); it is cached with the reference, and with ``cache``
         (rows unique) the reference's spectrum under cur's window too (it does not depend on
-        the margins)."""
-        lay = self._lay
+        the margins). The detection's weights are not made (the pass has its detection)."""
+        n = len(rows)
         spec, wy, wx = self._windowed_reference(rows, mg)
-        wc, fw, _, mm, noise = self._ref_terms(spec, _energy(wy, wx))
-        if cache:
-            todo = rows[~self._refc_ready[rows]]
-            if len(todo):
-                ref_c, _ = self._prep(self._ref_in, todo, lay.wy_cur[None], lay.wx_cur[None])
+        if out is None:
+            out = (np.empty(spec.shape, np.complex64), np.zeros((n, 3, 3)), np.empty((n, 2)))
+        wc, mm, bias_out = out
+        noise = np.empty(n)
+        self._ref_terms(spec, _energy(wy, wx), (wc, *self._no_detect, mm, noise))
+        bias_out[...] = self._self_bias(wc, spec, np.arange(n), rows, noise, wy, wx, cache)
+        return wc, mm, bias_out
+
+    def _cur_window_reference(self, rows: np.ndarray, cache: bool):
+        """The spectra of reference blocks ``rows`` under cur's window: (array, its rows of
+        these blocks); with ``cache`` (rows unique) kept for the reference (they do not
+        depend on any margin)."""
+        lay = self._lay
+        if not cache:
+            ref_c, _ = self._prep(self._ref_in, rows, lay.wy_cur[None], lay.wx_cur[None],
+                                  usable=False)
+            return fftbackend.rfft2(ref_c), np.arange(len(rows))
+        todo = rows[~self._refc_ready[rows]]
+        if len(todo):
+            ref_c, _ = self._prep(self._ref_in, todo, lay.wy_cur[None], lay.wx_cur[None],
+                                  usable=False)
+            run = _run_of(todo)
+            if run is not None:
+                fftbackend.rfft2(ref_c, self._refc[run])
+            else:
                 self._refc[todo] = fftbackend.rfft2(ref_c)
-                self._refc_ready[todo] = True
-            other = self._refc[rows]
-        else:
-            ref_c, _ = self._prep(self._ref_in, rows, lay.wy_cur[None], lay.wx_cur[None])
-            other = fftbackend.rfft2(ref_c)
+            self._refc_ready[todo] = True
+        return self._refc, rows
+
+    def _self_bias(self, wconj, spec, wrow, rows, noise, wy, wx, cache):
+        """The bias (m, 2) px that ref's window wy (1 or m, h) x wx (1 or m, w) gives a pass
+        against cur's window: Newton from 0 on the reference blocks ``rows`` against
+        themselves under cur's window, W conj(R) ``wconj`` and R ``spec`` (rows ``wrow``)
+        under ref's, less the noise x noise term of noise variances ``noise`` (m,)
+        (:meth:`_window_reference`); NaN where not finite."""
+        n = len(rows)
+        other, orow = self._cur_window_reference(rows, cache)
         # cur's window is flat (1) on ref's support: the windows' product sums to ref's sum
         s = noise * (wy.sum(axis=1, dtype=np.float64) * wx.sum(axis=1, dtype=np.float64))
-        y = np.empty(spec.shape, np.complex64)
-        kernels.self_cross(wc.view(np.float32), spec.view(np.float32),
-                           other.view(np.float32), s, y.view(np.float32))
-        bias = self._newton(y, np.arange(len(rows)), np.zeros((len(rows), 2)),
-                            self.options.iterations)[0]
-        return wc, fw, mm, np.where(np.isfinite(bias), bias, np.nan)
+        y = np.empty((n, *spec.shape[1:]), np.complex64)
+        kernels.self_cross(wconj.view(np.float32), spec.view(np.float32),
+                           np.asarray(wrow, dtype=np.int64), other.view(np.float32),
+                           np.asarray(orow, dtype=np.int64), s, y.view(np.float32))
+        bias = self._newton(y, np.arange(n), np.zeros((n, 2)), self.options.iterations)[0]
+        return np.where(np.isfinite(bias), bias, np.nan)
 
     def _fourier_masked(self, y, ridx, cur_arr, noise, d0, cache):
         """Fourier refinement after a masked detection: the lag is good to a bin, so straight
@@ -1017,28 +1100,39 @@ class Correlator:
         mg = _pass_margins(d)
         rows = ridx[idx]
         key = mg.reshape(len(idx), 4)
+        detect = self._masked is not None  # only the masked detection's PSR reads them
         if cache:
             miss = np.flatnonzero(np.any(self._pass_key[rows] != key, axis=1))
             if len(miss):
-                wc, fw, bw, mm, _, pb, s2 = self._pass_reference(rows[miss], mg[miss])
-                self._pass_pbox[rows[miss]] = pb
-                self._pass_s2[rows[miss]] = s2
-                self._pass_wconj[rows[miss]] = wc
-                self._pass_fw[rows[miss]] = fw
-                self._pass_bw[rows[miss]] = bw
-                self._pass_m[rows[miss]] = mm
-                self._pass_key[rows[miss]] = key[miss]
+                tgt = rows[miss]
+                run = _run_of(tgt)
+                if run is not None:  # a run of blocks: made in place
+                    self._pass_reference(tgt, mg[miss], detect, out=(
+                        self._pass_wconj[run],
+                        self._pass_fw[run] if detect else self._no_detect[0],
+                        self._pass_bw[run] if detect else self._no_detect[1],
+                        self._pass_m[run], self._pass_pbox[run], self._pass_s2[run]))
+                else:
+                    wc, fw, bw, mm, _, pb, s2 = self._pass_reference(tgt, mg[miss], detect)
+                    self._pass_pbox[tgt] = pb
+                    self._pass_s2[tgt] = s2
+                    self._pass_wconj[tgt] = wc
+                    if detect:
+                        self._pass_fw[tgt] = fw
+                        self._pass_bw[tgt] = bw
+                    self._pass_m[tgt] = mm
+                self._pass_key[tgt] = key[miss]
             src, fw, bw = self._pass_wconj, self._pass_fw, self._pass_bw
             srow, m = rows, self._pass_m[rows]
             pbox, s2r = self._pass_pbox, self._pass_s2[rows]
         else:
-            src, fw, bw, m, _, pbox, s2r = self._pass_reference(rows, mg)
+            src, fw, bw, m, _, pbox, s2r = self._pass_reference(rows, mg, detect)
             srow = np.arange(len(idx))
         wy = _pass_windows(h, lay.taper[0], mg[:, 0, 0], mg[:, 0, 1], d[:, 0])
         wx = _pass_windows(w, lay.taper[1], mg[:, 1, 0], mg[:, 1, 1], d[:, 1])
-        cur_w, _ = self._prep(cur_arr, idx, wy, wx)
+        cur_w, _ = self._prep(cur_arr, idx, wy, wx, usable=False)
         cspec = fftbackend.rfft2(cur_w)
-        y, _, floor = self._cross(cspec, src, fw, srow)
+        y, _, floor = self._cross(cspec, src, fw if detect else None, srow)
         return y, floor, m, (bw, srow), (cspec, pbox, s2r, _energy(wy, wx))
 
     def _windowed_reference(self, rows: np.ndarray, mg: np.ndarray):
@@ -1048,18 +1142,30 @@ class Correlator:
         h, w = self.shape
         wy = _pass_windows(h, lay.taper[0], mg[:, 0, 0], mg[:, 0, 1])
         wx = _pass_windows(w, lay.taper[1], mg[:, 1, 0], mg[:, 1, 1])
-        ref_w, _ = self._prep(self._ref_in, rows, wy, wx)
+        ref_w, _ = self._prep(self._ref_in, rows, wy, wx, usable=False)
         return fftbackend.rfft2(ref_w), wy, wx
 
-    def _pass_reference(self, rows: np.ndarray, mg: np.ndarray):
+    def _pass_reference(self, rows: np.ndarray, mg: np.ndarray, detect: bool = True,
+                        out: tuple | None = None):
         """:meth:`_ref_terms` of reference blocks ``rows`` windowed with zero margins
-        mg (m, 2, 2) (their own Knapp-Carter weights), the box means of their power
-        (m, h, k) and the noise power per bin (m,) of their weights."""
+        mg (m, 2, 2) (their own Knapp-Carter weights; the detection's with ``detect``), the
+        box means of their power (m, h, k) and the noise power per bin (m,) of their weights;
+        or into ``out``: (W conj(R), detection weights (outer, band; no blocks without
+        ``detect``), CRLB sums, box means, noise power per bin)."""
         spec, wy, wx = self._windowed_reference(rows, mg)
-        pbox = np.empty((len(rows), *spec.shape[1:]), np.float32)
         energy = _energy(wy, wx)
-        wc, fw, bw, mm, noise = self._ref_terms(spec, energy, pbox=pbox)
-        return wc, fw, bw, mm, noise, pbox, noise * energy
+        n = len(rows)
+        if out is None:
+            nd = n if detect else 0
+            out = (np.empty(spec.shape, np.complex64),
+                   np.empty((nd, *spec.shape[1:]), np.float32),
+                   np.empty((nd, *self._ref_bw.shape[1:]), np.float32), np.zeros((n, 3, 3)),
+                   np.empty(spec.shape, np.float32), np.empty(n))
+        wc, fw, bw, mm, pbox, s2 = out
+        noise = np.empty(n)
+        self._ref_terms(spec, energy, (wc, fw, bw, mm, noise), pbox=pbox)
+        s2[...] = noise * energy
+        return wc, fw, bw, mm, noise, pbox, s2
 
     def _common_psr(self, ridx, cur_arr, d, cache):
         """PSR (N,) of the whitened surface of the content common at lag ``d`` (N, 2) px, and

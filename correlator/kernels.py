@@ -29,10 +29,12 @@ def prep_blocks(blocks, blk, wy, wx, weighted, out, stats):
     wx (1 or n, w) float32 separable window; ``weighted``: remove the window-weighted mean
     (else the plain mean). Writes out (n, h, w) float32 = (block - mean) * wy * wx (non-finite
     pixels count as 0) and stats (n, 4) float64: plain mean, plain std, non-finite pixel count,
-    saturated (1.0 when more than half the pixels sit at the block's maximum).
+    saturated (1.0 when more than half the pixels sit at the block's maximum); a stats of
+    no rows (0, 4): none (the maximum and the spread are not computed, ``out`` is the same).
     """
     h, w = blocks.shape[1], blocks.shape[2]
     npix = h * w
+    want = stats.shape[0] > 0
     for q in range(blk.shape[0]):
         b = blk[q]
         jy = q if wy.shape[0] > 1 else 0
@@ -54,14 +56,16 @@ def prep_blocks(blocks, blk, wy, wx, weighted, out, stats):
                 v = np.float32(blocks[b, i, j])
                 rs += v
                 rw += v * wx[jx, j]
-            rt = np.float32(-np.inf)
-            for j in range(w):
-                rt = max(rt, np.float32(blocks[b, i, j]))
             s += rs
             swx += wy[jy, i] * rw
-            top = max(top, np.float64(rt))
+            if want:
+                rt = np.float32(-np.inf)
+                for j in range(w):
+                    rt = max(rt, np.float32(blocks[b, i, j]))
+                top = max(top, np.float64(rt))
         bad = 0
-        if not np.isfinite(s + swx + top):  # rare: count and zero the non-finite pixels
+        # rare: count and zero the non-finite pixels
+        if not np.isfinite(s + swx + (top if want else 0.0)):
             s = 0.0
             swx = 0.0
             top = -np.inf
@@ -77,6 +81,14 @@ def prep_blocks(blocks, blk, wy, wx, weighted, out, stats):
         mean = s / npix
         mw = swx / sw_tot if weighted and sw_tot > 0 else mean
         m32 = np.float32(mw)
+        if not want:  # the windowed block alone
+            for i in range(h):
+                for j in range(w):
+                    v = np.float32(blocks[b, i, j])
+                    if bad and not np.isfinite(v):
+                        v = np.float32(0.0)
+                    out[q, i, j] = (v - m32) * wy[jy, i] * wx[jx, j]
+            continue
         t32 = np.float32(top)
         at_top = 0
         ss = 0.0
@@ -155,12 +167,15 @@ def ref_spectra(spec, imm, imm_norm, energy, box, box_det, flat, alpha, ay, ax, 
     band columns) float32 that ratio on the central band. Writes wconj = W conj(R),
     m (n, 3, 3) float64 (the sums alpha rows a_y^i a_x^j W^2 (|R|^2 - s2 / 2), i + j <= 2: see
     :func:`crlb`), noise (n,) pixel variance and, where pbox (float32) has n blocks (not 1),
-    the box mean of |R|^2 pbox (n, h, k) (for :func:`both_weights`). The complex arrays
-    (n, h, k) are passed as their interleaved float32 views (n, h, 2k).
+    the box mean of |R|^2 pbox (n, h, k) (for :func:`both_weights`). fw and bw of no blocks
+    (0, ...): the detection's weights are not made (a pass's reference that no detection
+    reads; the other outputs are the same). The complex arrays (n, h, k) are passed as their
+    interleaved float32 views (n, h, 2k).
     """
     n, h, k2 = spec.shape
     k = k2 // 2
     r = box // 2
+    det = fw.shape[0] == n and n > 0
     p = np.empty((h, k), np.float32)
     cs = np.empty((k + 2 * r + 1, 4), np.float64)  # prefix sums of mirror-padded rows
     mirror = np.empty(k + 2 * r, np.int64)
@@ -203,7 +218,9 @@ def ref_spectra(spec, imm, imm_norm, energy, box, box_det, flat, alpha, ay, ax, 
                 for o in range(nr):
                     for j in range(k):
                         tmp[i0 + o, j] = cs[j + box, o] - cs[j, o]
-                        tmd[i0 + o, j] = cs[j + r + rd + 1, o] - cs[j + r - rd, o]
+                    if det:
+                        for j in range(k):
+                            tmd[i0 + o, j] = cs[j + r + rd + 1, o] - cs[j + r - rd, o]
             # ... then a running box over rows (wrapped)
             for j in range(k):
                 t[j] = 0.0
@@ -211,9 +228,10 @@ def ref_spectra(spec, imm, imm_norm, energy, box, box_det, flat, alpha, ay, ax, 
             for o in range(-r, r + 1):
                 for j in range(k):
                     t[j] += tmp[o % h, j]
-            for o in range(-rd, rd + 1):
-                for j in range(k):
-                    td[j] += tmd[o % h, j]
+            if det:
+                for o in range(-rd, rd + 1):
+                    for j in range(k):
+                        td[j] += tmd[o % h, j]
         for a in range(3):
             for c in range(3):
                 m[b, a, c] = 0.0
@@ -229,22 +247,26 @@ def ref_spectra(spec, imm, imm_norm, energy, box, box_det, flat, alpha, ay, ax, 
                 for j in range(k):
                     ps = max(np.float32(t[j] * norm) - s2, np.float32(0.0))
                     wts[j] = ps / (np.float32(2.0) * ps + s2 + np.float32(1e-30))
-                    pd = max(np.float32(td[j] * norm_d) - s2, np.float32(0.0))
-                    wd = pd / (np.float32(2.0) * pd + s2 + np.float32(1e-30))
-                    ratio[j] = wd / wts[j] if wts[j] > 0 else np.float32(0.0)
+                if det:
+                    for j in range(k):
+                        pd = max(np.float32(td[j] * norm_d) - s2, np.float32(0.0))
+                        wd = pd / (np.float32(2.0) * pd + s2 + np.float32(1e-30))
+                        ratio[j] = wd / wts[j] if wts[j] > 0 else np.float32(0.0)
                 ia = (i + r + 1) % h
                 ib = (i - r) % h
                 for j in range(k):
                     t[j] += tmp[ia, j] - tmp[ib, j]
-                ia = (i + rd + 1) % h
-                ib = (i - rd) % h
+                if det:
+                    ia = (i + rd + 1) % h
+                    ib = (i - rd) % h
+                    for j in range(k):
+                        td[j] += tmd[ia, j] - tmd[ib, j]
+            if det:
                 for j in range(k):
-                    td[j] += tmd[ia, j] - tmd[ib, j]
-            for j in range(k):
-                fw[b, i, j] = ratio[j] if j >= outer_from[i] else np.float32(0.0)
-            if band_of[i] >= 0:
-                for j in range(kb):
-                    bw[b, band_of[i], j] = ratio[j]
+                    fw[b, i, j] = ratio[j] if j >= outer_from[i] else np.float32(0.0)
+                if band_of[i] >= 0:
+                    for j in range(kb):
+                        bw[b, band_of[i], j] = ratio[j]
             c0 = np.float32(0.0)
             c1 = np.float32(0.0)
             c2 = np.float32(0.0)
@@ -268,10 +290,26 @@ def cross_spectra(spec, wconj, fw, ref_idx, imm, outer_n, y, noise_raw, floor):
     ``ref_idx`` (n,) of ``wconj``; noise_raw (n,) the Immerkaer sum of |C|^2 (divide by the
     norm and window energy); floor (n,) the mean of |fw y| (the detection's cross spectrum at
     the ``outer_n`` outer frequencies, fw: rows as ``wconj``, 0 elsewhere), at least 1e-6 of
-    the RMS |y|. Complex arrays (n, h, k) are passed as their interleaved float32 views (n, h, 2k).
+    the RMS |y|; with noise_raw and floor of no blocks (0,), y alone (fw is not read). Complex
+    arrays (n, h, k) are passed as their interleaved float32 views (n, h, 2k).
     """
     n, h, k2 = spec.shape
     k = k2 // 2
+    if floor.shape[0] == 0:
+        for b in range(n):
+            rb = ref_idx[b]
+            for i in range(h):
+                c = spec[b, i]
+                wc = wconj[rb, i]
+                yr = y[b, i]
+                for j in range(k):
+                    cr = c[2 * j]
+                    ci = c[2 * j + 1]
+                    wr = wc[2 * j]
+                    wi = wc[2 * j + 1]
+                    yr[2 * j] = wr * cr - wi * ci
+                    yr[2 * j + 1] = wr * ci + wi * cr
+        return
     for b in range(n):
         rb = ref_idx[b]
         acc = 0.0
@@ -672,21 +710,23 @@ def both_weights(y, spec, pbox, prow, cbox, crow, cscale, s2r, s2, shrink, alpha
 
 
 @nb.njit(**_JIT)
-def self_cross(wconj, spec, other, s, y):
+def self_cross(wconj, spec, wrow, other, orow, s, y):
     """The weighted cross spectrum of a reference against itself under another window, less
     its noise x noise term: y = W conj(R) R' - s W, with W conj(R) ``wconj`` and R ``spec``
-    the reference's spectrum under one window (W = |W conj(R)| / |R|), R' ``other`` its
-    spectrum under the other window, and s (n,) the noise's expected product per bin
-    (pixel variance times the sum of the two windows' product). Complex arrays (n, h, k) as
-    their interleaved float32 views (n, h, 2k); y likewise."""
-    n, h, k2 = spec.shape
+    (rows ``wrow`` (n,)) the reference's spectrum under one window (W = |W conj(R)| / |R|),
+    R' rows ``orow`` (n,)
+    of ``other`` its spectrum under the other window, and s (n,) the noise's expected product
+    per bin (pixel variance times the sum of the two windows' product). Complex arrays
+    (n, h, k) as their interleaved float32 views (n, h, 2k); y likewise."""
+    n = wrow.shape[0]
+    h, k2 = spec.shape[1], spec.shape[2]
     k = k2 // 2
     for b in range(n):
         sb = np.float32(s[b])
         for i in range(h):
-            wc = wconj[b, i]
-            r = spec[b, i]
-            o = other[b, i]
+            wc = wconj[wrow[b], i]
+            r = spec[wrow[b], i]
+            o = other[orow[b], i]
             yr = y[b, i]
             for j in range(k):
                 wr = wc[2 * j]

@@ -213,3 +213,66 @@ def test_scenario_passes_the_trusted_prediction_to_the_tracker():
     data["correlator"]["trust_prediction_px"] = 0.0
     with pytest.raises(ScenarioError, match="correlator.trust_prediction_px"):
         parse_scenario(data)
+
+
+def test_lean_kernel_variants_equal_the_full_ones():
+    """The variants that skip what a pass does not read (issue 35's independent-pair speed):
+    a block windowed without its sanity statistics, a reference's terms without the
+    detection's weights, a cross spectrum without its noise and floor sums, each gives the
+    full kernel's other outputs bit for bit."""
+    from correlator import kernels
+    from correlator.core import _Layout
+
+    lay = _Layout.of(64, 64)
+    g = lay.full
+    rng = np.random.default_rng(3501)
+    blocks = (100.0 + 10.0 * rng.normal(size=(3, 64, 64))).astype(np.float32)
+    blk = np.arange(3)
+    wy, wx = lay.wy_ref[None], lay.wx_ref[None]
+    full, lean = fftbackend.empty(blocks.shape), fftbackend.empty(blocks.shape)
+    kernels.prep_blocks(blocks, blk, wy, wx, True, full, np.empty((3, 4)))
+    kernels.prep_blocks(blocks, blk, wy, wx, True, lean, np.empty((0, 4)))
+    assert np.array_equal(full, lean)
+    spec = fftbackend.rfft2(full)
+    n, h, k = spec.shape
+    outs = []
+    for det in (True, False):
+        nd = n if det else 0
+        o = (np.empty(spec.shape, np.complex64), np.empty((nd, h, k), np.float32),
+             np.empty((nd, len(lay.band_rows), lay.band_cols), np.float32),
+             np.zeros((n, 3, 3)), np.empty(n), np.empty(spec.shape, np.float32))
+        kernels.ref_spectra(spec.view(np.float32), lay.immerkaer, lay.immerkaer_norm,
+                            np.full(n, lay.e_ref), lay.smooth, 11, False, g.alpha, g.ay, g.ax,
+                            g.rows, lay.outer_from, lay.band_rows, o[0].view(np.float32),
+                            o[1], o[2], o[3], o[4], o[5])
+        outs.append(o)
+    for i in (0, 3, 4, 5):  # W conj(R), CRLB sums, noise, box means
+        assert np.array_equal(outs[0][i], outs[1][i]), i
+    ys = []
+    for fl in (np.empty(n), np.empty(0)):
+        y = np.empty(spec.shape, np.complex64)
+        kernels.cross_spectra(spec.view(np.float32), outs[0][0].view(np.float32),
+                              outs[0][1] if len(fl) else np.empty((0, 1, 1), np.float32),
+                              blk, lay.immerkaer, lay.outer_n, y.view(np.float32),
+                              np.empty(len(fl)), fl)
+        ys.append(y)
+    assert np.array_equal(ys[0], ys[1])
+
+
+@pytest.mark.parametrize("rewindow", [None, True])
+def test_references_made_in_place_equal_those_made_apart(rewindow):
+    """A correlator makes its first-pass and pass references in place where its blocks are a
+    run (independent pairs) and apart, then copied, where they are not (``index`` out of
+    order): the same results either way, to floating noise (the order of the blocks alone
+    moves the shifts by ~2e-8 px, before this change too; a reference made wrong would be
+    0.001-1 px off) and the same decisions."""
+    ref, cur, _ = texture_pairs(12, 64, np.random.default_rng(3502), snr=10.0,
+                                texture="medium")
+    a = Correlator(ref, rewindow=rewindow, workers=1).measure(cur)
+    perm = np.random.default_rng(3503).permutation(12)
+    b = Correlator(ref, rewindow=rewindow, workers=1).measure(cur[perm], index=perm)
+    assert a.precise.any()
+    for f in ("valid", "precise"):
+        assert np.array_equal(getattr(a, f)[perm], getattr(b, f)), f
+    for f in ("shift", "crlb", "peak", "p_wrong"):
+        assert np.allclose(getattr(a, f)[perm], getattr(b, f), rtol=1e-5, atol=1e-6), f

@@ -161,3 +161,18 @@ def test_scalar_fallback_renders_and_never_loads_libllvm15():
     _, mean2, std2 = ref.stdout.split()
     assert float(mean) == pytest.approx(float(mean2), rel=0.03)
     assert float(std) == pytest.approx(float(std2), rel=0.15)
+
+
+@pytest.mark.parametrize("n_seeds", [2, 40, 3000])
+def test_nearest_seed_equals_the_texel_by_texel_query(n_seeds):
+    """The Voronoi labelling decided per block from its centre equals a k-d tree's query at
+    every texel, for cells much larger than a block and for cells about a block wide."""
+    from scipy.spatial import cKDTree
+
+    from scene.terrain import nearest_seed
+
+    n = 301
+    seeds = np.random.default_rng(n_seeds).uniform(0, n, size=(n_seeds, 2))
+    yy, xx = np.mgrid[0:n, 0:n]
+    _, want = cKDTree(seeds).query(np.column_stack([yy.ravel(), xx.ravel()]).astype(float))
+    assert np.array_equal(nearest_seed(seeds, n), want.reshape(n, n))

@@ -13,7 +13,7 @@ bias from the one realisation's noise; ``--rerender SEED`` renders them here (Mi
 min on 2 cores). Measured here, never asserted in tests.
 
     .venv/bin/python benchmarks/bench_pair_bias.py --run RUN [--frames FILE --keys a,b]
-        [--rerender SEED] [--out benchmarks/out]
+        [--rerender SEED] [--geometry] [--out benchmarks/out]
 
 RUN: ``imc run scenarios/no_stage.yaml --save-frames --out RUN``.
 """
@@ -126,6 +126,29 @@ def rerender(m, seed: int) -> dict[str, np.ndarray]:
     return {"noisy": noisy, "clean": clean}
 
 
+def geometry(m, frames: np.ndarray, k_max: int = 4) -> list[dict]:
+    """The strip's geometry (after a constant / an affine, measured and predicted, K = 1 ..
+    ``k_max`` smoothed) from links measured on ``frames``: every baseline, the first too,
+    cut by :func:`imc.wiring.links.pair_corners` (``links._extra_blocks``), the first flagged
+    as the loop's; the product's solve (``bench_restitution._geometry``)."""
+    from bench_restitution import _geometry
+
+    from imc.wiring.links import LinkTable, _extra_blocks, combine_blocks
+
+    n = len(m.frame_t_s)
+    a, b, d, s, v, reg = _extra_blocks(m, frames, np.zeros((n, 2)), k_max, first=1)
+    mean, sig, nblk, chi2 = combine_blocks(d, s, v)
+    ok = nblk >= 2
+    eff = np.sqrt(np.maximum(chi2[ok].sum(0) / max(int((nblk[ok] - 1).sum()), 1), 1.0))
+    share = np.where(v[..., None], sig[:, None] ** 2 / np.maximum(s, 1e-12), 0.0) * eff
+    valid = (nblk >= 1) & np.all(np.isfinite(mean), axis=1)
+    links = LinkTable(a, b, mean, sig * eff, valid, m.frame_mid_s[b], b - a, nblk, b - a == 1,
+                      eff, reg, share, int(m.scenario.correlator.block_px), 1)
+    return [_geometry(m, links, m.scenario.product.lines,
+                      restitution={"baselines": k, "smoother": True})
+            for k in range(1, k_max + 1)]
+
+
 def summary(rows: list[dict]) -> dict:
     """Per baseline and variant: the links' mean error (row, col) px and its standard error,
     each block's mean, and the error's slope on the true jitter increment."""
@@ -159,6 +182,8 @@ def main() -> None:
     ap.add_argument("--keys", default="frames", help="comma-separated arrays of --frames")
     ap.add_argument("--rerender", type=int, default=None, help="measure the frames "
                     "rendered again with this noise seed (noisy and without sensor noise)")
+    ap.add_argument("--geometry", action="store_true", help="also the strip's geometry "
+                    "against K from links measured on each set of frames")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "out"))
     a = ap.parse_args()
     d = _scenario()
@@ -175,6 +200,8 @@ def main() -> None:
     for key in keys:
         t0 = time.perf_counter()
         out[key] = {**summary(pair_errors(m, z[key])), "s": time.perf_counter() - t0}
+        if a.geometry:
+            out[key]["geometry"] = geometry(m, z[key])
         print(json.dumps({key: out[key]}, indent=1), flush=True)
     Path(a.out).mkdir(parents=True, exist_ok=True)
     write_json(Path(a.out) / "pair_bias.json", out)

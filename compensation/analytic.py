@@ -30,6 +30,7 @@ the unit circle (argument principle), so integrators and resonators on the circl
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from functools import cached_property, lru_cache
 
@@ -58,6 +59,53 @@ def _piecewise_fourier(t: np.ndarray, s: np.ndarray, omega: np.ndarray, interp: 
     jw = 1j * w
     seg = sa * (ea - eb) / jw + slope * (-(b - a) * eb / jw + (ea - eb) / jw**2)
     return seg.sum(axis=1)
+
+
+def linear_fourier(t_s: np.ndarray, s: np.ndarray, omega: np.ndarray) -> np.ndarray | None:
+    """Integral of a trajectory s(t) linearly interpolated between uniformly spaced samples
+    (``t_s`` (N,) s, ``s`` (N,)), zero outside them, times exp(-j w t), at each angular
+    frequency ``omega`` (F,) rad/s > 0; None when the samples are not uniformly spaced.
+
+    What :func:`_piecewise_fourier` integrates segment by segment, in
+    closed form on the uniform grid t_k = t_0 + k h: the sum is A(x) sum_k s_k e^{-j w t_k}
+    + B(x) sum_k (s_{k+1} - s_k) e^{-j w t_k}, x = j w h, A = h (1 - e^{-x}) / x,
+    B = h ((1 - e^{-x}) / x - e^{-x}) / x (their series below |x| = 0.05, where the closed
+    forms cancel), the two sums by baby-step giant-step (e^{-j w h (L q + p)} from F (L +
+    Q) exponentials and one matrix product, L Q >= N - 1): F (L + Q) exponentials instead
+    of 2 F N, and no recurrence, so the rounding stays at ~1e-11 of the largest value
+    (segment by segment in doubles it is ~1e-8 to 1e-7 at the lowest frequencies, against
+    the sum in extended precision)."""
+    t = np.asarray(t_s, np.float64)
+    n = len(t) - 1
+    if n < 2:
+        return None
+    h = (t[-1] - t[0]) / n
+    if not h > 0 or np.max(np.abs(t - (t[0] + h * np.arange(n + 1)))) > 1e-9 * h:
+        return None
+    w = np.asarray(omega, np.float64)
+    big = int(np.ceil(np.sqrt(n)))
+    small_n = int(np.ceil(n / big))
+    coef = np.zeros((2, small_n * big))
+    coef[0, :n] = s[:-1]
+    coef[1, :n] = np.diff(s)
+    e_p = np.exp(-1j * np.outer(w, h * np.arange(big)))  # (F, L)
+    e_q = np.exp(-1j * np.outer(w, t[0] + h * big * np.arange(small_n)))  # (F, Q)
+    inner = np.einsum("fl,cql->cfq", e_p, coef.reshape(2, small_n, big))
+    sums = np.einsum("cfq,fq->cf", inner, e_q)
+    x = 1j * w * h
+    r = np.exp(-x)
+    near = np.abs(x) < 0.05
+    xs = np.where(near, 1.0, x)
+    phi1 = (1.0 - r) / xs
+    g = (phi1 - r) / xs
+    ser1 = np.zeros_like(x)
+    ser2 = np.zeros_like(x)
+    for k in range(10):  # (1 - e^-x) / x and ((1 - e^-x) / x - e^-x) / x
+        ser1 = ser1 + (-x) ** k / math.factorial(k + 1)
+        ser2 = ser2 + (-1) ** k * (k + 1) / math.factorial(k + 2) * x**k
+    phi1 = np.where(near, ser1, phi1)
+    g = np.where(near, ser2, g)
+    return h * (phi1 * sums[0] + g * sums[1])
 
 
 def _pulse_trajectory(act, phi: float, period: float, end: float) -> Trajectory:
@@ -95,6 +143,10 @@ def _stage_response(actuator, period: float, exposure: float, phi: float,
     """See :meth:`LoopModel.stage_response` (cached per actuator, timing and frequencies)."""
     f = np.frombuffer(f_bytes, dtype=np.float64)
     _, _, t, s, interp = _pulse(actuator, period, exposure, phi)
+    if interp == "linear":  # in closed form on a uniform grid
+        h = linear_fourier(t, s, 2 * np.pi * f)
+        if h is not None:
+            return h / period
     out = np.empty(len(f), dtype=np.complex128)
     for i in range(0, len(f), 256):  # bounded memory: (256, samples) at a time
         w = 2 * np.pi * f[i:i + 256]

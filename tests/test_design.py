@@ -178,8 +178,7 @@ def test_the_fast_search_equals_the_reference_evaluation_on_a_reduced_space():
 
 
 def test_the_closed_form_stage_response_matches_the_segment_sum():
-    from compensation.analytic import _piecewise_fourier
-    from imc.workflow.predict import linear_fourier
+    from compensation.analytic import _piecewise_fourier, linear_fourier
 
     rng = np.random.default_rng(11)
     t = 0.003 + np.arange(2001) * 2.5e-4  # a uniform grid not starting at 0

@@ -35,7 +35,8 @@ models imcsim already has; what `imc design` searches with, and what
 
 The search (:class:`LoopJobs`) groups the loops by rate and stage: what a group shares is
 computed once (:class:`StageShare`: the actuator, the stage's response on each frequency
-grid, in closed form on its uniform time grid (:func:`linear_fourier`), the plant's
+grid, in closed form on its uniform time grid by
+:func:`compensation.analytic.linear_fourier`), the plant's
 polynomials there, the stage's response to the held commands at the metrics' times), a
 Kalman predictor's steady state once per rate and bandwidth (:class:`SharedSteadyKalman`),
 and each loop then costs its controller's polynomials on those grids. The predictions are
@@ -49,7 +50,6 @@ of sight), measured jitter series and suspensions.
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 from functools import cached_property, lru_cache
 
@@ -286,53 +286,6 @@ def tracker_exposure_s(base: Scenario, rate_hz: float) -> float:
     return 1.0 / rate_hz if e is None or e > 1.0 / rate_hz else e
 
 
-def linear_fourier(t_s: np.ndarray, s: np.ndarray, omega: np.ndarray) -> np.ndarray | None:
-    """Integral of a trajectory s(t) linearly interpolated between uniformly spaced samples
-    (``t_s`` (N,) s, ``s`` (N,)), zero outside them, times exp(-j w t), at each angular
-    frequency ``omega`` (F,) rad/s > 0; None when the samples are not uniformly spaced.
-
-    What :func:`compensation.analytic._piecewise_fourier` integrates segment by segment, in
-    closed form on the uniform grid t_k = t_0 + k h: the sum is A(x) sum_k s_k e^{-j w t_k}
-    + B(x) sum_k (s_{k+1} - s_k) e^{-j w t_k}, x = j w h, A = h (1 - e^{-x}) / x,
-    B = h ((1 - e^{-x}) / x - e^{-x}) / x (their series below |x| = 0.05, where the closed
-    forms cancel), the two sums by baby-step giant-step (e^{-j w h (L q + p)} from F (L +
-    Q) exponentials and one matrix product, L Q >= N - 1): F (L + Q) exponentials instead
-    of 2 F N, and no recurrence, so the rounding stays at ~1e-11 of the largest value
-    (segment by segment in doubles it is ~1e-8 to 1e-7 at the lowest frequencies, against
-    the sum in extended precision)."""
-    t = np.asarray(t_s, np.float64)
-    n = len(t) - 1
-    if n < 2:
-        return None
-    h = (t[-1] - t[0]) / n
-    if not h > 0 or np.max(np.abs(t - (t[0] + h * np.arange(n + 1)))) > 1e-9 * h:
-        return None
-    w = np.asarray(omega, np.float64)
-    big = int(np.ceil(np.sqrt(n)))
-    small_n = int(np.ceil(n / big))
-    coef = np.zeros((2, small_n * big))
-    coef[0, :n] = s[:-1]
-    coef[1, :n] = np.diff(s)
-    e_p = np.exp(-1j * np.outer(w, h * np.arange(big)))  # (F, L)
-    e_q = np.exp(-1j * np.outer(w, t[0] + h * big * np.arange(small_n)))  # (F, Q)
-    inner = np.einsum("fl,cql->cfq", e_p, coef.reshape(2, small_n, big))
-    sums = np.einsum("cfq,fq->cf", inner, e_q)
-    x = 1j * w * h
-    r = np.exp(-x)
-    near = np.abs(x) < 0.05
-    xs = np.where(near, 1.0, x)
-    phi1 = (1.0 - r) / xs
-    g = (phi1 - r) / xs
-    ser1 = np.zeros_like(x)
-    ser2 = np.zeros_like(x)
-    for k in range(10):  # (1 - e^-x) / x and ((1 - e^-x) / x - e^-x) / x
-        ser1 = ser1 + (-x) ** k / math.factorial(k + 1)
-        ser2 = ser2 + (-1) ** k * (k + 1) / math.factorial(k + 2) * x**k
-    phi1 = np.where(near, ser1, phi1)
-    g = np.where(near, ser2, g)
-    return h * (phi1 * sums[0] + g * sums[1])
-
-
 @dataclass(frozen=True, eq=False)
 class PlantGrid:
     """What every loop of one stage and timing shares on one frequency grid: the grid
@@ -378,9 +331,7 @@ class StageShare:
             n, phi = model.timing
             x = 1.0 / model._z(f)
             g, g_pq = model.plant_polys()
-            _, _, t, s, interp = model.pulse
-            h = linear_fourier(t, s, 2 * np.pi * f) if interp == "linear" else None
-            stage = (LoopModel.stage_response(model, f) if h is None else h / model.period_s)
+            stage = LoopModel.stage_response(model, f)
             self._grids[key] = PlantGrid(f, x, x**n, stage, LoopModel.averaging(model, f),
                                          polyval(x, g), polyval(x, g_pq))
         return self._grids[key]
@@ -400,7 +351,7 @@ class FastLoopModel(LoopModel):
     many times), and whose plant on a frequency grid (stage response, exposure averaging,
     plant polynomials) comes from ``share``, the :class:`StageShare` of the loops with the
     same stage and timing: the same transfer functions as :class:`LoopModel`'s, the stage's
-    response integrated in closed form (:func:`linear_fourier`)."""
+    response integrated in closed form (:func:`compensation.analytic.linear_fourier`)."""
 
     share: StageShare = dataclasses.field(default_factory=StageShare, compare=False,
                                           hash=False, repr=False)
@@ -439,7 +390,7 @@ class FastLoopModel(LoopModel):
         return c * lp
 
     def stage_response(self, f_hz) -> np.ndarray:
-        """H(w) / T (:meth:`LoopModel.stage_response`, by :func:`linear_fourier`)."""
+        """H(w) / T (:meth:`LoopModel.stage_response`, once per frequency grid)."""
         return self.share.grid(self, f_hz).stage.copy()
 
     def averaging(self, f_hz) -> np.ndarray:

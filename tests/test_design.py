@@ -470,3 +470,65 @@ def test_the_records_interpolation_floor_grows_with_the_jitters_frequency():
         floors.append(after[1])
     assert floors[0] < 1e-4 and floors[-1] > 0.05
     assert np.all(np.diff(floors) > 0)
+
+
+def test_the_shared_pixel_record_predictor_reproduces_the_pixels_noise():
+    """The record predictor's network (`record_links`: a chain of 12 frames, baselines
+    1-3, 4 blocks of 16 px on a 64 px sensor, 9 px of flow a frame, 10 % of each link's
+    variance its own) against 2,000 draws of the pixel model itself: each frame's noise
+    over a region of its pixels (unit variance; two regions' covariance the share of their
+    pixels in common, counted on pixel masks), each block's error half its reference
+    region's noise and half its current region's (as the run's links are cut:
+    `chain_corners`, `pair_corners`), the links solved as a network. The mean squared
+    geometry after a constant and after an affine equals the prediction's within
+    3 sqrt(2 / N); the shared pixels make the record > 1.15x worse than independent links of
+    the same variances; at f = 1 the predictor is that independent network."""
+    from ground.network import Links, geometry_rms, solve_network
+    from imc.workflow.predict import ChainGeometry, record_links
+
+    n, k, f, draws, bp = 12, 3, 0.1, 2000, 16
+    geo = ChainGeometry(64, 64, bp, 4, (9.0, 0.0))
+    links = record_links(n, k, geo, f)
+    t = np.arange(n) / 100.0
+    pred = geometry_rms(np.zeros((n, 2)), t, solve_network(links, n).cov_px2)
+    cuts = [geo.cut(j) for j in range(1, k + 1)]
+    n1 = cuts[0][2].sum()
+    # every region each frame is read on, and their noises drawn jointly from pixel masks
+    rng = np.random.default_rng(33)
+    entries = []  # (link, frame, region corner, coefficient)
+    for i, (a, b) in enumerate(zip(links.a, links.b, strict=True)):
+        ref, cur, used = cuts[b - a - 1]
+        c = np.sqrt(n1) / used.sum() / np.sqrt(2)
+        entries += [(i, a, tuple(r), -c) for r in ref[used]]
+        entries += [(i, b, tuple(r), c) for r in cur[used]]
+    err = np.zeros((len(links.a), draws))
+    for fr in range(n):
+        regions = sorted({e[2] for e in entries if e[1] == fr})
+        masks = np.zeros((len(regions), 64, 64), bool)
+        for j, (r, c) in enumerate(regions):
+            masks[j, r:r + bp, c:c + bp] = True
+        cov = np.einsum("ixy,jxy->ij", masks.astype(float), masks.astype(float)) / bp**2
+        w, v = np.linalg.eigh(cov)
+        nu = (v * np.sqrt(np.clip(w, 0, None))) @ rng.standard_normal((len(regions), draws))
+        for li, fe, reg, c in entries:
+            if fe == fr:
+                err[li] += c * nu[regions.index(reg)]
+    var = np.var(err, axis=1)  # each link's own part keeps its variance's share f
+    d = np.sqrt(1 - f) * err + np.sqrt(f * var)[:, None] * rng.standard_normal(err.shape)
+    sol = solve_network(Links(links.a, links.b, np.repeat(d[:, None], 2, 1),
+                              links.sigma_px, shared=links.shared), n)
+    tol = 3 * np.sqrt(2 / draws)
+    for key in ("constant", "affine"):
+        ms = np.mean([geometry_rms(sol.s_px[:, :, j], t)[key] ** 2 for j in range(draws)], 0)
+        assert np.allclose(ms / pred[f"predicted_{key}"] ** 2, 1.0, atol=tol), key
+    # independent links of the same variances (the shared covariance's diagonal)
+    whole = record_links(n, k, geo, 0.0)
+    diag = np.stack([c.diagonal() for c in whole.shared.covariance(np.arange(len(whole.a)))],
+                    1)
+    indep = geometry_rms(np.zeros((n, 2)), t, solve_network(Links(
+        whole.a, whole.b, np.zeros_like(diag), np.sqrt(diag)), n).cov_px2)
+    assert np.all(pred["predicted_constant"] > 1.15 * indep["predicted_constant"])
+    one = geometry_rms(np.zeros((n, 2)), t, solve_network(record_links(n, k, geo, 1.0),
+                                                          n).cov_px2)
+    for key in ("predicted_constant", "predicted_affine"):
+        assert np.allclose(one[key], indep[key], rtol=1e-9)

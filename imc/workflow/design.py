@@ -54,8 +54,8 @@ from imc.workflow.predict import (
     min_valid_fraction,
     nominal_line_rate_hz,
     product_span_s,
-    record_geometry_unit,
     residual_figures,
+    search_record_geometry,
     tracker_bound,
     tracker_bounds,
     tracker_snr,
@@ -465,13 +465,9 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
 
         room = base.camera.tracker.rows - b - OVERLAP_MARGIN_PX
         kmax = np.maximum(1, np.floor(room / (nominal_line_rate_hz(base) / rate))).astype(int)
-    geo = np.full((len(li), 2), np.nan)
-    span = product_span_s(base)
-    for r_hz, k_b in set(zip(rate.tolist(), kmax.tolist(), strict=True)):
-        c_u, a_u = record_geometry_unit(float(r_hz), span, int(k_b))
-        sel = (rate == r_hz) & (kmax == k_b)
-        geo[sel, 0], geo[sel, 1] = c_u, a_u
     corr = ground == "correction"
+    geo_c, geo_a = search_record_geometry(base, m, dist, rate, kmax, b, nb, sigma,
+                                          corr & np.isfinite(sigma))
     values = {
         "with_compensation.rms_px": rms,
         "with_compensation.rms_px.0": rms[:, 0],
@@ -481,8 +477,8 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
         "with_compensation.mtf_nyquist_worst.0": mtf[:, 0],
         "with_compensation.mtf_nyquist_worst.1": mtf[:, 1],
         "loop.lock.analytic_s": lock,
-        "product.geometry.open.after.rms_px": np.where(corr, geo[:, 0] * sigma, np.nan),
-        "product.geometry.open.affine.rms_px": np.where(corr, geo[:, 1] * sigma, np.nan),
+        "product.geometry.open.after.rms_px": geo_c,
+        "product.geometry.open.affine.rms_px": geo_a,
     }
     if NIIRS_PATH in cfg.requirements:
         values[NIIRS_PATH] = niirs_losses(m, preds, li, ok, blur)

@@ -671,22 +671,203 @@ def record_floor_px(dist: Disturbance, rate_hz: float, exposure_s: float,
     return np.asarray(g["constant"]), np.asarray(g["affine"])
 
 
-@lru_cache(maxsize=64)
+#: the share of each link's error that is its own rather than its frames' pixels' (the rest
+#: enters every link measured on the same pixels: :class:`ground.network.SharedNoise`), the
+#: record predictor's stated default: the run's own REML estimate
+#: (:func:`ground.network.estimate_independent_fraction`) on no_stage.yaml's rendered strip
+#: is 0.11 / 0.07 (row / col)
+RECORD_OWN_FRACTION = 0.1
+#: the most frames :func:`record_geometry_unit` solves a shared-pixel network on (the
+#: design search calls it per rate, baselines, block size and count)
+SHARED_FRAMES = 160
+
+
+@dataclass(frozen=True)
+class ChainGeometry:
+    """A scanning tracker's blocks as its record's links cut them: ``n_blocks`` blocks of
+    ``block_px`` placed on the ``rows`` x ``cols`` px sensor by
+    :func:`correlator.tracker.block_grid`, the content moving by ``step_px`` (rows, cols)
+    px per frame (rounded to 0.1 px: it is a cache key). Baseline 1 (the loop's link) is
+    cut as the loop's chain cuts it (:func:`imc.wiring.links.chain_corners`), baselines >= 2
+    as the ground's extra links (:func:`imc.wiring.links.pair_corners`)."""
+
+    rows: int
+    cols: int
+    block_px: int
+    n_blocks: int
+    step_px: tuple[float, float]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "step_px", tuple(round(float(v), 1) for v in self.step_px))
+
+    def cut(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The blocks of a link of baseline ``k`` frames: reference corners (B, 2), current
+        corners (B, 2) px, and whether each block is measured (B,)."""
+        from correlator.tracker import block_grid
+        from imc.wiring.links import chain_corners, pair_corners
+
+        b = int(self.block_px)
+        corners = block_grid(self.rows, self.cols, b, self.n_blocks)
+        step = np.broadcast_to(k * np.asarray(self.step_px, float), corners.shape)
+        if k == 1:
+            return chain_corners(corners, step, b, (self.rows, self.cols))
+        ref, used = pair_corners(corners, step, b, np.array([self.rows - b, self.cols - b]))
+        return ref, ref + np.rint(step).astype(int), used
+
+
+@lru_cache(maxsize=128)
+def record_links(n_frames: int, baselines: int, geometry: ChainGeometry | None = None,
+                 own_fraction: float = RECORD_OWN_FRACTION):
+    """The record's links over ``n_frames`` frames, every baseline 1..``baselines``, each
+    of baseline 1 with 1 px of error (:class:`ground.network.Links`, no motion): with
+    ``geometry`` the links share their frames' pixels as the run's do
+    (:meth:`imc.wiring.links.LinkTable.network`: each block's error half its reference
+    region's noise and half its current region's, :meth:`ground.network.SharedNoise.
+    from_blocks`; blocks of equal error, so a link of baseline k has n_1 / n_k times the
+    variance of the loop's, n_k its measured blocks), ``own_fraction`` of each link's
+    variance its own (:func:`ground.network.with_independent_fraction`, as the run applies
+    its REML estimate where the links are redundant); without, independent links of 1 px.
+    Links without a measured block are left out. Cached per (frames, baselines, geometry,
+    fraction)."""
+    from ground.network import Links, SharedNoise, with_independent_fraction
+
+    n, kmax = int(n_frames), int(min(baselines, n_frames - 1))
+    if geometry is None:
+        return Links.baselines(np.zeros((n, 2)), kmax, 1.0)
+    cuts = [geometry.cut(k) for k in range(1, kmax + 1)]
+    n1 = max(int(cuts[0][2].sum()), 1)
+    a, b, ref, cur, share = [], [], [], [], []
+    for k, (r, c, used) in enumerate(cuts, start=1):
+        nk = int(used.sum())
+        if nk == 0:
+            continue
+        aa = np.arange(n - k)
+        a.append(aa)
+        b.append(aa + k)
+        ref.append(np.broadcast_to(r, (aa.size,) + r.shape))
+        cur.append(np.broadcast_to(c, (aa.size,) + c.shape))
+        # a block's share: its weight 1 / n_k times its error sqrt(n_1) (baseline 1: 1 px)
+        sh = np.where(used[:, None], np.sqrt(n1) / nk, 0.0)
+        share.append(np.broadcast_to(sh, (aa.size,) + sh.shape))
+    a, b = np.concatenate(a), np.concatenate(b)
+    shared = SharedNoise.from_blocks(a, b, np.concatenate(ref), np.concatenate(cur),
+                                     np.concatenate(share), int(geometry.block_px))
+    links = Links(a, b, np.zeros((a.size, 2)), np.zeros((a.size, 2)), shared=shared)
+    if a.size > n + 2:  # redundant links: the run estimates and applies the own share
+        links = with_independent_fraction(links, own_fraction)
+    return links
+
+
+def _scaled_links(unit, sigma_px: np.ndarray, d_px: np.ndarray, t_s: np.ndarray):
+    """``unit`` (:func:`record_links`) with the loop's link error ``sigma_px`` (2,) px per
+    axis, the displacements ``d_px`` (n, 2) px and the frame times ``t_s``."""
+    from ground.network import Links, SharedNoise
+
+    sig = np.asarray(sigma_px, float)
+    sh = unit.shared
+    if sh is not None:
+        sh = SharedNoise(sh.link, sh.frame, sh.corner_px, sh.coef_px * sig, sh.block_px,
+                         sh.cell_px)
+    return Links(unit.a, unit.b, d_px, unit.sigma_px * sig, unit.valid, t_s, shared=sh)
+
+
+def record_geometry(sigma_px, rate_hz: float, exposure_s: float, duration_s: float,
+                    line_t_s: np.ndarray, baselines: int, dist: Disturbance | None = None,
+                    geometry: ChainGeometry | None = None, smoother: bool = True,
+                    own_fraction: float = RECORD_OWN_FRACTION, max_lines: int = 512
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """The geometry (after a constant, after an affine) (2,) px per axis that the record's
+    errors leave in a product's lines, as the run's restitution
+    (:func:`imc.wiring.restitution.restitute`) makes the record: the tracker's frames over
+    ``duration_s`` at ``rate_hz`` (exposure ``exposure_s``), the links of
+    :func:`record_links` (baselines 1..``baselines``; shared pixels with ``geometry``)
+    with the loop's link error ``sigma_px`` (scalar or (2,) px), solved as a network
+    (:func:`ground.network.solve_network`) and, with ``smoother``, smoothed
+    (:func:`ground.network.smooth_network`) with the prior the run would estimate from its
+    record (:func:`ground.network.estimate_prior` on the solution of the noise-free links
+    of the sinusoids of ``dist``, with the network's covariance). The smoothed error is
+    the smoother's bias on the sinusoids (its estimate of the noise-free links less the
+    truth) plus its noise, of covariance ``C - C P C`` (C the posterior covariance, P the
+    prior's precision: the linear smoother's ``M R M^T``, without the prior's own
+    variance, which the jitter does not follow). Both are carried to the lines' times
+    ``line_t_s`` (at most ``max_lines`` of them) by the interpolation between frames and
+    measured as :func:`ground.network.geometry_rms` measures the run. Random jitter terms
+    are not in the truth the smoother sees (sinusoids only)."""
+    from scipy import sparse
+
+    from ground.network import (
+        NetworkSolution,
+        _difference_operator,
+        _prior_scale,
+        estimate_prior,
+        geometry_rms,
+        smooth_network,
+        solve_network,
+    )
+
+    t0 = np.arange(int(np.floor(duration_s * rate_hz - 1e-9)) + 1) / rate_hz
+    t0 = t0[t0 + exposure_s <= duration_s + 1e-9]
+    n = int(t0.size)
+    t = t0 + 0.5 * exposure_s
+    s = np.zeros((n, 2))
+    if dist is not None and len(dist.sin_f_hz):
+        s = _exposure_means(dist, t0, exposure_s)
+        s = s - s[0]
+    unit = record_links(n, int(max(1, baselines)), geometry, float(own_fraction))
+    sig = np.broadcast_to(np.asarray(sigma_px, float), (2,))
+    links = _scaled_links(unit, sig, s[unit.b] - s[unit.a], t)
+    sol = solve_network(links, n)
+    cov = sol.cov_px2
+    if smoother and n >= 5:
+        prior = estimate_prior(sol, 2)
+        sol = smooth_network(links, n, prior=prior)
+        dop = _difference_operator(n, 2)
+        c = _prior_scale(t, 2)
+        cov = np.empty_like(sol.cov_px2)
+        for ax in range(2):
+            p = (dop.T @ sparse.diags(1.0 / (c * prior.q_px2[ax])) @ dop).toarray()
+            cc = sol.cov_px2[ax]
+            cov[ax] = cc - cc @ p @ cc
+    err = NetworkSolution(sol.s_px - s, cov, t, "first")
+    lt = np.asarray(line_t_s, float)
+    lt = lt[np.unique(np.linspace(0, lt.size - 1, min(lt.size, max_lines)).astype(int))]
+    e, _ = err.at(lt)
+    g = geometry_rms(e, lt, err.covariance_at(lt))
+    return (np.hypot(g["constant"], g["predicted_constant"]),
+            np.hypot(g["affine"], g["predicted_affine"]))
+
+
+@lru_cache(maxsize=256)
 def record_geometry_unit(rate_hz: float, duration_s: float, baselines: int = 1,
-                         max_frames: int = 1500) -> tuple[float, float]:
+                         max_frames: int = 1500, geometry: ChainGeometry | None = None,
+                         own_fraction: float = RECORD_OWN_FRACTION) -> tuple[float, float]:
     """(after a constant, after an affine) geometry RMS (px, per axis alike) of the record of
-    a tracker at ``rate_hz`` over ``duration_s`` with 1 px of error per link (``baselines``
-    0: a fixed reference, each frame's error independent): the network
-    (:meth:`ground.network.Links.baselines`, :func:`ground.network.solve_network`) and its
-    covariance through :func:`ground.network.geometry_rms`. Scales linearly with the link
-    error. Frames beyond ``max_frames`` are decimated (the rate is kept per link)."""
-    from ground.network import Links, geometry_rms, solve_network
+    a tracker at ``rate_hz`` over ``duration_s`` with 1 px of error per link of baseline 1
+    (``baselines`` 0: a fixed reference, each frame's error independent): the network of
+    :func:`record_links` (with ``geometry``: the links share their frames' pixels, with
+    ``own_fraction`` their own; without: independent), solved
+    (:func:`ground.network.solve_network`), its covariance through
+    :func:`ground.network.geometry_rms`; unsmoothed (:func:`record_geometry` smooths).
+    Scales linearly with the link error. Frames beyond ``max_frames`` are cut (the rate is
+    kept per link). With ``geometry``, a record longer than :data:`SHARED_FRAMES` frames
+    takes the independent network's figures times the shared one's ratio to them on
+    :data:`SHARED_FRAMES` frames (the ratio moves by < 6 % from 60 to 332 frames on 4 x 64
+    px at K = 4, 2 x 48 px at K = 2 and 8 x 32 px at K = 10: the chain is stationary).
+    Cached per (rate, span, baselines, geometry, fraction)."""
+    from ground.network import geometry_rms, solve_network
 
     n = int(np.clip(round(rate_hz * duration_s), 4, max_frames))
     if baselines <= 0:  # every frame against one reference: independent errors
         return float(np.sqrt(1.0 - 1.0 / n)), float(np.sqrt(1.0 - 2.0 / n))
     k = int(min(baselines, n - 1))
-    links = Links.baselines(np.zeros((n, 2)), k, 1.0)
+    if geometry is not None and n > SHARED_FRAMES:  # the shared network's ratio, scaled
+        ind = np.array(record_geometry_unit(rate_hz, duration_s, k, max_frames))
+        short = SHARED_FRAMES / rate_hz
+        ratio = np.array(record_geometry_unit(rate_hz, short, k, max_frames, geometry,
+                                              own_fraction)) \
+            / np.array(record_geometry_unit(rate_hz, short, k, max_frames))
+        return float(ind[0] * ratio[0]), float(ind[1] * ratio[1])
+    links = record_links(n, k, geometry, float(own_fraction))
     sol = solve_network(links, n)
     t = np.arange(n) / rate_hz
     g = geometry_rms(np.zeros((n, 2)), t, cov_px2=sol.cov_px2)
@@ -953,6 +1134,96 @@ def _rendered_frame0(m) -> np.ndarray:
         plant.close()
 
 
+def chain_geometry(m) -> ChainGeometry | None:
+    """The :class:`ChainGeometry` of a built run's scanning tracker (its sensor, blocks and
+    the nominal flow per frame, :func:`image_flow_px_per_s`); None for a staring one."""
+    if not m.chain:
+        return None
+    fp = m.camera.focal_plane
+    step = image_flow_px_per_s(m) / m.rate_hz
+    return ChainGeometry(int(fp.rows), int(fp.cols), int(m.scenario.correlator.block_px),
+                         len(m.corners), (float(step[0]), float(step[1])))
+
+
+def record_prediction(m, sigma_px, dist: Disturbance, baselines: int
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The geometry after ground correction (after a constant, after an affine) (2,) px of
+    a built run whose tracker errs by ``sigma_px`` (2,) px per frame, and the perfect
+    record's floor (after a constant, after an affine) (2, 2) px: a scanning tracker's
+    record as the run's restitution makes it (:func:`record_geometry`: shared pixels, the
+    smoother where ``product.restitution.smoother``) over the product's lines
+    (:func:`imc.wiring.product.plan_product`); a staring tracker (``baselines`` 0: every
+    frame against one reference) the network's covariance over the product's span
+    (:func:`record_geometry_unit`); the floor (:func:`record_floor_px`: the jitter between
+    the record's samples, 0 without a product) added in quadrature."""
+    sc = m.scenario
+    sigma = np.broadcast_to(np.asarray(sigma_px, float), (2,))
+    geometry = chain_geometry(m)
+    if not sc.product.enabled:
+        c_u, a_u = record_geometry_unit(m.rate_hz, product_span_s(sc), int(baselines))
+        return c_u * sigma, a_u * sigma, np.zeros((2, 2))
+    from imc.wiring.product import plan_product
+
+    plan = plan_product(m)
+    if baselines <= 0 or geometry is None:
+        c_u, a_u = record_geometry_unit(m.rate_hz, product_span_s(sc), int(baselines))
+        c, a = c_u * sigma, a_u * sigma
+    else:
+        c, a = record_geometry(sigma, m.rate_hz, m.exposure_s, sc.duration_s, plan.line_t_s,
+                               int(baselines), dist, geometry, sc.product.restitution.smoother)
+    floor = np.array(record_floor_px(dist, m.rate_hz, m.exposure_s, sc.duration_s,
+                                     plan.line_t_s, plan.integration_s))
+    return np.hypot(c, floor[0]), np.hypot(a, floor[1]), floor
+
+
+def search_record_geometry(base: Scenario, m, dist: Disturbance, rate_hz: np.ndarray,
+                           baselines: np.ndarray, block_px: np.ndarray,
+                           n_blocks: np.ndarray, sigma_px: np.ndarray, use: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """The design search's geometry after ground correction (after a constant, after an
+    affine) (n, 2) px per candidate (NaN where not ``use``): the network's covariance over
+    the product's span (:func:`record_geometry_unit`, once per rate, baselines and, for a
+    scanning tracker, block size and count: the links share their frames' pixels as the
+    blocks are cut, :class:`ChainGeometry` with the base's nominal flow per frame) times
+    the candidate's tracker error ``sigma_px`` (n,), the perfect record's floor
+    (:func:`record_floor_px`, once per rate) added in quadrature. Unlike
+    :func:`record_prediction` the smoother is not modelled here (it needs a solve per
+    tracker error): the search's geometry is the unsmoothed record's, which the smoother
+    only lowers."""
+    out_c = np.full((len(rate_hz), 2), np.nan)
+    out_a = np.full((len(rate_hz), 2), np.nan)
+    if not use.any():
+        return out_c, out_a
+    span = product_span_s(base)
+    flow = image_flow_px_per_s(m) if m.chain else None
+    plan = None
+    if base.product.enabled:
+        from imc.wiring.product import plan_product
+
+        plan = plan_product(m)
+    fp = base.camera.tracker
+    floors: dict[float, np.ndarray] = {}
+    keys = set(zip(rate_hz[use].tolist(), baselines[use].tolist(), block_px[use].tolist(),
+                   n_blocks[use].tolist(), strict=True))
+    for r_hz, k_b, b_px, n_b in keys:
+        geometry = None
+        if flow is not None and k_b > 0:
+            step = flow / r_hz
+            geometry = ChainGeometry(int(fp.rows), int(fp.cols), int(b_px), int(n_b),
+                                     (float(step[0]), float(step[1])))
+        c_u, a_u = record_geometry_unit(float(r_hz), span, int(k_b), geometry=geometry)
+        if r_hz not in floors:
+            floors[r_hz] = np.zeros((2, 2)) if plan is None else np.array(record_floor_px(
+                dist, r_hz, tracker_exposure_s(base, r_hz), base.duration_s, plan.line_t_s,
+                plan.integration_s))
+        sel = use & (rate_hz == r_hz) & (baselines == k_b) & (block_px == b_px) \
+            & (n_blocks == n_b)
+        sg = sigma_px[sel][:, None]
+        out_c[sel] = np.hypot(c_u * sg, floors[r_hz][0][None])
+        out_a[sel] = np.hypot(a_u * sg, floors[r_hz][1][None])
+    return out_c, out_a
+
+
 def predict_scenario(sc: Scenario, fidelity: str | None = None,
                      efficiency: float | None = None) -> dict[str, object]:
     """A scenario predicted as `imc design` predicts a candidate, with the scenario's own
@@ -981,7 +1252,7 @@ def predict_scenario(sc: Scenario, fidelity: str | None = None,
 
     kmax = sc.product.restitution.baselines or overlap_baselines(m)
     staring = sc.attitude.mode == "target"
-    c_u, a_u = record_geometry_unit(m.rate_hz, product_span_s(sc), 0 if staring else kmax)
+    geo_c, geo_a, floor = record_prediction(m, sigma, dist, 0 if staring else kmax)
     ni = NiirsInputs.from_models(m)
     niirs = ni.loss(p.mtf_det_curve, blur)
     po = predict_model(None, sc, dist, m.exposure_s, lock=False)  # the open loop's product
@@ -992,11 +1263,12 @@ def predict_scenario(sc: Scenario, fidelity: str | None = None,
             "loop.lock.analytic_s": float(p.lock_s),
             "product.quality.closed.niirs_loss": niirs[0],
             "product.quality.open.niirs_loss": niirs_open[0],
-            "product.geometry.open.after.rms_px": (c_u * sigma).tolist(),
-            "product.geometry.open.affine.rms_px": (a_u * sigma).tolist(),
+            "product.geometry.open.after.rms_px": geo_c.tolist(),
+            "product.geometry.open.affine.rms_px": geo_a.tolist(),
             "parts": {"crlb_px": crlb.tolist(), "kept_fraction": kept, "tracker_snr": snr,
                       "noise_gain_blur": float(p.noise_gain_blur),
                       "efficiency": eff.at(snr), "efficiency_spread": eff.spread,
+                      "record_floor_px": floor.tolist(),
                       "sigma_px": sigma.tolist(), "noise_gain": float(p.noise_gain),
                       "rms_det_px": list(p.rms_det_px), "var_rnd_px2": list(p.var_rnd_px2),
                       "mtf_det_worst": list(p.mtf_det_worst), "loop_ok": p.ok,

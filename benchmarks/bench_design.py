@@ -15,6 +15,9 @@ figures (and writes them under benchmarks/out/design/); never asserted in a test
     PYTHONPATH=. .venv/bin/python benchmarks/bench_design.py --bundled --runs DIR
     # the correlator's efficiency on scene classes and SNRs outside the bundled scenarios
     PYTHONPATH=. .venv/bin/python benchmarks/bench_design.py --calibrate texture
+    # its dependence on the block size (a 256 px tracker, 32-96 px blocks, SNR 20)
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_design.py --calibrate rendered \
+        --classes procedural --snrs 20 --blocks 32 48 64 96 --tracker-px 256
 """
 
 from __future__ import annotations
@@ -47,44 +50,48 @@ CAL_SNRS = (10.0, 20.0, 40.0)
 CAL_SEEDS = (101, 202)
 
 
-def calibration_case(kind: str, snr: float, fidelity: str, seed: int = 101) -> dict:
+def calibration_case(kind: str, snr: float, fidelity: str, seed: int = 101,
+                     block_px: int = 48, tracker_px: int = 128) -> dict:
     """A calibration scenario: the quickstart's camera and loop on a scene class, no jitter
-    (the residual is the tracker's noise through the loop), a 128 px tracker with 4 blocks of
-    48 px, 0.6 s, the tracker's SNR (additive noise) as given."""
+    (the residual is the tracker's noise through the loop), a ``tracker_px`` square tracker
+    (128; 256: a 512 m tile) with 4 blocks of ``block_px`` (48), 0.6 s, the tracker's SNR
+    (additive noise) as given."""
     d = yaml.safe_load((ROOT / "scenarios" / "quickstart.yaml").read_text())
     d.pop("expect")
-    d.update(name=f"cal_{kind}_{snr:g}", seed=seed, duration_s=0.6)
+    d.update(name=f"cal_{kind}_{snr:g}_{block_px}_{tracker_px}", seed=seed, duration_s=0.6)
     d["attitude"]["jitter"] = {"sinusoids": []}
-    d["scene"].update(kind=kind, size_m=300, texel_m=0.5)
+    d["scene"].update(kind=kind, size_m=300 if tracker_px <= 128 else 512, texel_m=0.5)
     d["scene"].pop("relief_rms_m", None)
-    d["camera"]["tracker"].update(rows=128, cols=128, mean_signal_dn=100,
+    d["camera"]["tracker"].update(rows=tracker_px, cols=tracker_px, mean_signal_dn=100,
                                   noise_sigma_dn=100.0 / snr)
-    d["correlator"].update(block_px=48, n_blocks=4)
+    d["correlator"].update(block_px=block_px, n_blocks=4)
     d["plant"] = {"fidelity": fidelity}
     d["metrics"]["blur_images"] = False
     return d
 
 
 def calibrate(fidelity: str, out: Path, classes=CAL_CLASSES, snrs=CAL_SNRS,
-              seeds=CAL_SEEDS) -> dict:
+              seeds=CAL_SEEDS, blocks=(48,), tracker_px: int = 128) -> dict:
     """The correlator's efficiency on the calibration cases: per case the tracker's measured
     error over the predictor's bound (``predicted_sigma_px``, per block) and the loop's
     residual over the predictor's noise residual at efficiency 1 (noise gain x bound /
-    sqrt(blocks)); their mean and spread."""
+    sqrt(blocks)); their mean and spread, and with several ``blocks`` sizes the exponent of
+    the loop's efficiency against the block's side (:func:`block_exponent`)."""
     from imc.pipeline import run_scenario
     from imc.scenario import parse_scenario
     from imc.workflow.predict import predict_scenario
 
     rows = []
-    for kind, snr, seed in itertools.product(classes, snrs, seeds):
-        sc = parse_scenario(calibration_case(kind, snr, fidelity, seed))
+    for kind, snr, seed, bp in itertools.product(classes, snrs, seeds, blocks):
+        sc = parse_scenario(calibration_case(kind, snr, fidelity, seed, bp, tracker_px))
         p = predict_scenario(sc, fidelity, efficiency=1.0)  # the bound itself
         t0 = time.perf_counter()
-        m, _ = run_scenario(sc, out / f"{kind}_{snr:g}_{seed}", rerun=False)
+        m, _ = run_scenario(sc, out / f"{kind}_{snr:g}_{seed}_{bp}_{tracker_px}", rerun=False)
         crlb = np.array(p["parts"]["crlb_px"])
         trk = np.array(m["tracker"]["rms_error_px"], float)
         loop = np.array(m["with_compensation"]["rms_px"], float)
-        rows.append({"kind": kind, "snr": snr, "seed": seed, "crlb_px": crlb.tolist(),
+        rows.append({"kind": kind, "snr": snr, "seed": seed, "block_px": bp,
+                     "tracker_px": tracker_px, "crlb_px": crlb.tolist(),
                      "run_median_crlb_px": m["tracker"]["median_crlb_px"],
                      "tracker_rms_px": trk.tolist(),
                      "valid_fraction": m["tracker"]["valid_fraction"],
@@ -95,7 +102,8 @@ def calibrate(fidelity: str, out: Path, classes=CAL_CLASSES, snrs=CAL_SNRS,
                          p["with_compensation.rms_px"])).tolist(),
                      "run_s": time.perf_counter() - t0})
         r = rows[-1]
-        print(f"{fidelity} {kind:9s} SNR {snr:4g} seed {seed}: bound {crlb.mean():.4f} px, tracker "
+        print(f"{fidelity} {kind:9s} SNR {snr:4g} seed {seed} {bp} px on {tracker_px} px: "
+              f"bound {crlb.mean():.4f} px, tracker "
               f"{trk.mean():.4f} px (x{np.mean(r['tracker_efficiency']):.2f}), residual "
               f"{loop.mean():.4f} px (x{np.mean(r['loop_efficiency']):.2f}), valid "
               f"{r['valid_fraction']:.2f}, {r['run_s']:.0f} s", flush=True)
@@ -104,7 +112,35 @@ def calibrate(fidelity: str, out: Path, classes=CAL_CLASSES, snrs=CAL_SNRS,
         v = np.array([x for r in rows for x in r[key] if np.isfinite(x)])
         summary[key] = {"mean": float(v.mean()), "std": float(v.std(ddof=1)),
                         "min": float(v.min()), "max": float(v.max()), "n": int(v.size)}
+    if len(set(blocks)) > 1:
+        summary["block_exponent"] = block_exponent(rows)
     return {"fidelity": fidelity, "cases": rows, "summary": summary}
+
+
+def block_exponent(rows: list[dict], reference_px: int = 48) -> dict:
+    """The loop efficiency's power law in the block's side, ``(b / reference_px)^gamma``:
+    each case's efficiency (both axes' mean) over its own (kind, SNR, seed, tracker) group's
+    at ``reference_px`` (so the scene, seed and SNR cancel), least squares in log-log through
+    the origin; gamma, its standard error and the ratios per block size."""
+    ref = {(r["kind"], r["snr"], r["seed"], r["tracker_px"]): np.mean(r["loop_efficiency"])
+           for r in rows if r["block_px"] == reference_px}
+    x, y, per = [], [], {}
+    for r in rows:
+        key = (r["kind"], r["snr"], r["seed"], r["tracker_px"])
+        if key not in ref or r["block_px"] == reference_px:
+            continue
+        ratio = float(np.mean(r["loop_efficiency"]) / ref[key])
+        x.append(np.log(r["block_px"] / reference_px))
+        y.append(np.log(ratio))
+        per.setdefault(int(r["block_px"]), []).append(ratio)
+    x, y = np.array(x), np.array(y)
+    if x.size < 2:
+        return {"gamma": 0.0, "se": float("nan"), "ratios": per}
+    gamma = float(x @ y / (x @ x))
+    res = y - gamma * x
+    se = float(np.sqrt(res @ res / max(x.size - 1, 1) / (x @ x)))
+    return {"gamma": gamma, "se": se, "reference_px": reference_px,
+            "ratios": {b: [float(v) for v in vals] for b, vals in sorted(per.items())}}
 
 
 # ------------------------------------------------------------------------------ bundled
@@ -364,13 +400,22 @@ def main() -> None:
     ap.add_argument("--classes", nargs="*", default=list(CAL_CLASSES))
     ap.add_argument("--snrs", nargs="*", type=float, default=list(CAL_SNRS))
     ap.add_argument("--seeds", nargs="*", type=int, default=list(CAL_SEEDS))
+    ap.add_argument("--blocks", nargs="*", type=int, default=[48], help="the calibration's "
+                    "block sizes, px (several: the efficiency's exponent in the block size)")
+    ap.add_argument("--tracker-px", type=int, default=128, help="the calibration tracker's "
+                    "side, px (256: a 512 m tile)")
     args = ap.parse_args()
     OUT.mkdir(parents=True, exist_ok=True)
     if args.calibrate:
         res = calibrate(args.calibrate, OUT / f"cal_{args.calibrate}", args.classes,
-                        args.snrs, args.seeds)
-        (OUT / f"efficiency_{args.calibrate}.json").write_text(json.dumps(res, indent=1))
+                        args.snrs, args.seeds, args.blocks, args.tracker_px)
+        tag = "" if args.blocks == [48] else "_blocks"
+        (OUT / f"efficiency_{args.calibrate}{tag}.json").write_text(json.dumps(res, indent=1))
         for k, s in res["summary"].items():
+            if k == "block_exponent":
+                print(f"block exponent: {s['gamma']:.3f} +- {s['se']:.3f}, ratios to "
+                      f"{s.get('reference_px', 48)} px: {s['ratios']}")
+                continue
             print(f"{k}: {s['mean']:.3f} +- {s['std']:.3f} (min {s['min']:.3f}, max "
                   f"{s['max']:.3f}, n {s['n']})")
         return

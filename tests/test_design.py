@@ -307,7 +307,8 @@ def test_the_tracker_predictor_scales_the_bound_by_the_plants_calibrated_efficie
         det2 = sum(x**2 for x in p.rms_det_px)
         noise_a = c_a.predicted[p_key][i] ** 2 - det2
         noise_t = c_t.predicted[p_key][i] ** 2 - det2
-        assert noise_t / noise_a == pytest.approx(eff**2, rel=1e-6)
+        eff_b = model.at(snr, r["block_px"])  # at the candidate's block size
+        assert noise_t / noise_a == pytest.approx(eff_b**2, rel=1e-6)
     assert abs(eff**2 - 1.0) > 0.15
 
 

@@ -400,7 +400,7 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
         t_base = time.perf_counter()
         if crlb is None:  # each block size's own bound on the base scene (its models built once)
             m = build_models(base)
-            eff = efficiency.at(tracker_snr(m))
+            eff = efficiency.at(tracker_snr(m), b)
             table = tracker_bounds(m, free.block_px, cfg.verify.fidelity)
             per_block = np.array([table[int(x)][0] for x in b])
             p_kept = np.array([table[int(x)][1] for x in b])
@@ -408,7 +408,7 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
             base_crlb = float(np.mean(crlb0) / np.sqrt(kept0))
         else:  # a given bound at the base's block size, as one over the block's side
             m = build_models(base, light=True)
-            eff = efficiency.at(tracker_snr(m))
+            eff = efficiency.at(tracker_snr(m), b)
             per_block = crlb * (b0 / b)
             p_kept = np.ones(len(b))
             base_crlb = float(crlb)
@@ -888,7 +888,7 @@ def design_json(design: Design, c: Candidates, front: np.ndarray, chosen: int | 
         "predictors": {p: SUPPORTED[p] for p in design.config.requirements},
         "tracker_crlb_px": crlb_px,
         "tracker_snr": snr,
-        "correlator_efficiency": eff.at(snr),
+        "correlator_efficiency": eff.at(snr, design.base.correlator.block_px),
         "correlator_efficiency_spread": eff.spread,
         "correlator_efficiency_note": f"{design.config.verify.fidelity}: {eff.source}",
         "margin_required": design.config.margin,

@@ -91,19 +91,31 @@ NIIRS_PATH = "product.quality.closed.niirs_loss"
 class Efficiency:
     """The correlator's efficiency on a plant and scene kind: the loop's noise residual over
     what the predictor gives at efficiency 1 (noise gain x the bound over the kept blocks),
-    dimensionless, as ``factor`` at a tracker SNR of 20 plus ``slope`` per decade of SNR
-    (the SNR held to the calibrated 10-40), the residuals' standard deviation ``spread``
-    about that line, and where the figures come from."""
+    dimensionless, as ``factor`` at a tracker SNR of 20 and blocks of ``block_px`` (48) px,
+    plus ``slope`` per decade of SNR (the SNR held to the calibrated 10-40), times
+    ``(block / block_px) ** block_exponent`` (the block size held to the calibrated
+    32-96 px), the residuals' standard deviation ``spread`` about that line, and where the
+    figures come from."""
 
     factor: float
     slope: float
     spread: float
     source: str
+    block_exponent: float = 0.0
+    block_px: int = 48
 
-    def at(self, snr: float) -> float:
-        """The factor at a tracker SNR (mean signal over noise sigma), dimensionless."""
+    def at(self, snr: float, block_px=None):
+        """The factor at a tracker SNR (mean signal over noise sigma) and block size (px,
+        scalar or array; None: ``block_px``), dimensionless (an array for an array of
+        sizes)."""
         s = float(np.clip(snr, 10.0, 40.0)) if np.isfinite(snr) else 20.0
-        return max(0.1, self.factor + self.slope * np.log10(s / 20.0))
+        base = max(0.1, self.factor + self.slope * np.log10(s / 20.0))
+        if block_px is None or self.block_exponent == 0.0:
+            return base if block_px is None or np.ndim(block_px) == 0 \
+                else np.full(np.shape(block_px), base)
+        b = np.clip(np.asarray(block_px, float), 32.0, 96.0)
+        out = base * (b / self.block_px) ** self.block_exponent
+        return float(out) if np.ndim(out) == 0 else out
 
 
 _TEXTURE = "texture plant, benchmarks/bench_design.py --calibrate texture"
@@ -1244,7 +1256,8 @@ def predict_scenario(sc: Scenario, fidelity: str | None = None,
     eff = correlator_efficiency(fid, sc.scene.kind) if efficiency is None else Efficiency(
         efficiency, 0.0, 0.0, "given")
     snr = tracker_snr(m)
-    sigma = crlb * eff.at(snr) / np.sqrt(len(m.corners) * kept)
+    block = int(sc.correlator.block_px)
+    sigma = crlb * eff.at(snr, block) / np.sqrt(len(m.corners) * kept)
     rms, total, mtf, blur = residual_figures(
         np.array(p.rms_det_px), np.array(p.var_rnd_px2), np.array(p.noise_gain), sigma,
         np.array(p.mtf_det_worst), np.array(p.var_rnd_blur_px2), np.array(p.noise_gain_blur))
@@ -1267,7 +1280,7 @@ def predict_scenario(sc: Scenario, fidelity: str | None = None,
             "product.geometry.open.affine.rms_px": geo_a.tolist(),
             "parts": {"crlb_px": crlb.tolist(), "kept_fraction": kept, "tracker_snr": snr,
                       "noise_gain_blur": float(p.noise_gain_blur),
-                      "efficiency": eff.at(snr), "efficiency_spread": eff.spread,
+                      "efficiency": eff.at(snr, block), "efficiency_spread": eff.spread,
                       "record_floor_px": floor.tolist(),
                       "sigma_px": sigma.tolist(), "noise_gain": float(p.noise_gain),
                       "rms_det_px": list(p.rms_det_px), "var_rnd_px2": list(p.var_rnd_px2),

@@ -691,7 +691,7 @@ def record_floor_px(dist: Disturbance, rate_hz: float, exposure_s: float,
 RECORD_OWN_FRACTION = 0.1
 #: the most frames :func:`record_geometry_unit` solves a shared-pixel network on (the
 #: design search calls it per rate, baselines, block size and count)
-SHARED_FRAMES = 160
+SHARED_FRAMES = 100
 
 
 @dataclass(frozen=True)
@@ -863,8 +863,9 @@ def record_geometry_unit(rate_hz: float, duration_s: float, baselines: int = 1,
     Scales linearly with the link error. Frames beyond ``max_frames`` are cut (the rate is
     kept per link). With ``geometry``, a record longer than :data:`SHARED_FRAMES` frames
     takes the independent network's figures times the shared one's ratio to them on
-    :data:`SHARED_FRAMES` frames (the ratio moves by < 6 % from 60 to 332 frames on 4 x 64
-    px at K = 4, 2 x 48 px at K = 2 and 8 x 32 px at K = 10: the chain is stationary).
+    :data:`SHARED_FRAMES` frames (the chain is stationary: on 120 frames the ratio is within
+    1 % of 332 frames' on 4 x 64 px at K = 4 and 2 x 48 px at K = 2, 5 % low on 8 x 32 px
+    at K = 10; 10 % low there on 60 frames).
     Cached per (rate, span, baselines, geometry, fraction)."""
     from ground.network import geometry_rms, solve_network
 

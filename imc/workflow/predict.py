@@ -120,20 +120,32 @@ class Efficiency:
 
 _TEXTURE = "texture plant, benchmarks/bench_design.py --calibrate texture"
 _RENDERED = "rendered plant, benchmarks/bench_design.py --calibrate rendered"
+_BLOCKS = (" --classes procedural --snrs 20 --blocks 32 48 64 96 --tracker-px 256 (its factor "
+           "and block exponent; the SNR slope from the 128 px set)")
+#: the efficiency's power law in the block's side per plant: measured on the procedural
+#: kind, a 256 px tracker, blocks of 32 / 48 / 64 / 96 px, SNR 20, seeds 101 and 202 (each
+#: case over its seed's 48 px case): texture -0.55 +- 0.16, rendered -0.12 +- 0.09
+BLOCK_EXPONENT = {"texture": -0.55, "rendered": -0.12}
 #: the correlator's efficiency per plant fidelity and scene kind ('*': every kind, for a
 #: kind not calibrated), calibrated on cases outside the ones the predictions are judged
-#: on: the quickstart's camera and loop on 300 m tiles of each kind (seeds 101 and 202,
-#: not the bundled scenarios' scenes), no jitter, SNR 10, 20, 40; 12 values per kind (3
-#: SNRs x 2 seeds x 2 axes). The analytic plant draws its noise at the bound: 1.
+#: on: the quickstart's camera and loop on tiles of each kind (seeds 101 and 202, not the
+#: bundled scenarios' scenes), no jitter. The procedural kind's factor and every kind's
+#: block exponent come from a 256 px tracker (512 m tiles; blocks 32-96 px, SNR 20: 16
+#: values); the SNR slopes and the other kinds' factors from a 128 px tracker with 4 x 48
+#: px (300 m tiles; SNR 10, 20, 40: 12 values per kind), whose blocks sit 8 px from the
+#: frame's edges (the 48 px procedural factor there: texture 0.78, rendered 1.51; on the
+#: 256 px tracker, 40 px inside: 0.97 and 1.37). The analytic plant draws its noise at the
+#: bound: 1.
 CORRELATOR_EFFICIENCY: dict[str, dict[str, Efficiency]] = {
     "analytic": {"*": Efficiency(1.0, 0.0, 0.0, "by construction: the analytic plant draws "
                                  "its noise at the bound")},
     "texture": {
-        "procedural": Efficiency(0.78, -0.56, 0.09, _TEXTURE),
-        "urban": Efficiency(0.97, -0.20, 0.20, _TEXTURE),
-        "rural": Efficiency(0.89, -0.70, 0.28, _TEXTURE),
-        "mountain": Efficiency(1.40, -1.15, 0.18, _TEXTURE),
-        "*": Efficiency(1.01, -0.65, 0.32, _TEXTURE + " (the 48 values of all four kinds)"),
+        "procedural": Efficiency(1.01, -0.56, 0.22, _TEXTURE + _BLOCKS, BLOCK_EXPONENT["texture"]),
+        "urban": Efficiency(0.97, -0.20, 0.20, _TEXTURE, BLOCK_EXPONENT["texture"]),
+        "rural": Efficiency(0.89, -0.70, 0.28, _TEXTURE, BLOCK_EXPONENT["texture"]),
+        "mountain": Efficiency(1.40, -1.15, 0.18, _TEXTURE, BLOCK_EXPONENT["texture"]),
+        "*": Efficiency(1.01, -0.65, 0.32, _TEXTURE + " (the 48 values of all four kinds)",
+                        BLOCK_EXPONENT["texture"]),
     },
     # on the bound of a rendered frame 0 (tracker_bound); the rendered plant's error has a
     # floor the bound does not carry where the scene has 3-D structure (urban buildings'
@@ -141,11 +153,12 @@ CORRELATOR_EFFICIENCY: dict[str, dict[str, Efficiency]] = {
     # bound of 0.005-0.008 px), so efficiency grows with SNR and those kinds fit poorly
     # (seed 101 only: 6 values each)
     "rendered": {
-        "procedural": Efficiency(1.51, 1.35, 0.10, _RENDERED),
-        "rural": Efficiency(1.33, 0.70, 0.42, _RENDERED),
-        "urban": Efficiency(4.60, 8.09, 0.52, _RENDERED),
-        "mountain": Efficiency(4.96, 6.15, 1.77, _RENDERED),
-        "*": Efficiency(2.78, 3.53, 1.99, _RENDERED + " (the 30 values of all four kinds)"),
+        "procedural": Efficiency(1.33, 1.35, 0.16, _RENDERED + _BLOCKS, BLOCK_EXPONENT["rendered"]),
+        "rural": Efficiency(1.33, 0.70, 0.42, _RENDERED, BLOCK_EXPONENT["rendered"]),
+        "urban": Efficiency(4.60, 8.09, 0.52, _RENDERED, BLOCK_EXPONENT["rendered"]),
+        "mountain": Efficiency(4.96, 6.15, 1.77, _RENDERED, BLOCK_EXPONENT["rendered"]),
+        "*": Efficiency(2.78, 3.53, 1.99, _RENDERED + " (the 30 values of all four kinds)",
+                        BLOCK_EXPONENT["rendered"]),
     },
 }
 

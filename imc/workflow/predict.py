@@ -18,18 +18,23 @@ models imcsim already has; what `imc design` searches with, and what
   plant's on a rendered frame 0), scaled by block_px0 / block_px (the bound goes as one
   over the block's side), divided by sqrt(n_blocks) (the motion-field fit averages the
   blocks), times the correlator's efficiency (:data:`CORRELATOR_EFFICIENCY`: per plant and
-  scene kind against SNR, calibrated by ``benchmarks/bench_design.py --calibrate``; 1 by
-  construction for the analytic plant, which draws its noise at the bound).
+  scene kind against SNR and block size, calibrated by ``benchmarks/bench_design.py
+  --calibrate``; 1 by construction for the analytic plant, which draws its noise at the
+  bound).
 - Motion MTF at Nyquist per exposure (:func:`compensation.metrics.motion_mtf`): the
   sinusoids' residual over each main-imager exposure from ``start_s`` on, times the
   Gaussian factor exp(-pi^2 var / 2) of the random and noise residual's variance about the
   exposure's mean.
 - Lock time: :func:`compensation.lock.analytic_lock_time` of the same model.
-- Geometry after ground correction by the record: the record's network
-  (:meth:`ground.network.Links.baselines` on a synthetic series of the tracker frames
-  within the product's span, with the overlap's baselines,
-  :func:`ground.network.solve_network`) and its covariance through
-  :func:`ground.network.geometry_rms` (after a constant and after an affine).
+- Geometry after ground correction by the record (:func:`record_prediction`): the record's
+  network as the run's restitution makes it (:func:`record_links`: every baseline of the
+  overlap, the links' blocks cut as the run cuts them, :class:`ChainGeometry`, sharing
+  their frames' pixels, :class:`ground.network.SharedNoise`, with :data:`RECORD_OWN_FRACTION`
+  of each link's error its own), solved (:func:`ground.network.solve_network`) and smoothed
+  (:func:`record_geometry`), over the product's lines (after a constant and after an
+  affine, :func:`ground.network.geometry_rms`), plus the perfect record's floor
+  (:func:`record_floor_px`); the design search (:func:`search_record_geometry`) the same
+  network unsmoothed over the product's span.
 - NIIRS loss (:class:`NiirsInputs`): GIQE 5 (:func:`ground.quality.niirs_giqe5`) of the RER
   of the static system MTF and of it times the worst exposure's motion MTF.
 

@@ -312,6 +312,13 @@ class _Layout:
         return np.outer(self.wy_cur, self.wx_cur)
 
 
+@lru_cache(maxsize=16)
+def _layout(h: int, w: int) -> _Layout:
+    """The layout of (h, w) blocks, made once per shape (its arrays are read, never written:
+    every Correlator of that shape shares them)."""
+    return _Layout.of(h, w)
+
+
 def _energy(wy: np.ndarray, wx: np.ndarray) -> np.ndarray:
     """Sum of squares of separable windows wy (..., h) x wx (..., w)."""
     return ((wy.astype(np.float64) ** 2).sum(axis=-1)
@@ -341,6 +348,13 @@ def _pass_windows(n: int, taper: float, lo: np.ndarray, hi: np.ndarray,
     """Tukey windows (m, n) zero within lo (m,) px of the start and hi (m,) of the end,
     moved by ``shift`` px."""
     return spectral.tukey_1d(n, taper, 0.5 * (lo + hi), 0.5 * (lo - hi) + shift)
+
+
+def _margin_windows(n: int, taper: float, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """:func:`_pass_windows` (m, n) of whole-pixel margins lo, hi (m,) (no shift), each
+    distinct pair of margins made once (a stack holds a few)."""
+    u, inv = np.unique(lo * (n + 1) + hi, return_inverse=True)
+    return _pass_windows(n, taper, u // (n + 1), u % (n + 1))[inv.reshape(-1)]
 
 
 def _run_of(rows: np.ndarray) -> slice | None:
@@ -396,7 +410,7 @@ class Correlator:
         self._ref_in = _as_stack(ref, "ref")
         n, h, w = self._ref_in.shape
         self.shape = (h, w)
-        self._lay = lay = _Layout.of(h, w)
+        self._lay = lay = _layout(h, w)
         m = o.max_shift_px
         self.max_shift_px = float(min(h, w) // 4 if m is None else m)
         nw = o.workers
@@ -441,6 +455,11 @@ class Correlator:
                            np.empty((0, len(lay.band_rows), lay.band_cols), np.float32))
         masked = o.detection == "masked" or (o.detection == "auto"
                                              and self.max_shift_px > min(h, w) / 4)
+        # the first pass's paths (default and one-FFT) window the reference as cur for the
+        # detection: its spectrum then is also the one the first pass's window bias needs
+        # (:meth:`_cur_window_reference`), so a reference is transformed once for both
+        self._ref_as_cur = (o.subpixel == "fourier" and o.rewindow is not True and not masked
+                            and o.method != "optical" and not o.joint_plane)
         # unwindowed reference blocks less their means: for the masked search, Lucas-Kanade
         # and the optical emulation (made here, never by the worker threads)
         self._ref0 = None
@@ -482,9 +501,11 @@ class Correlator:
         else:
             out = [np.empty((len(todo), *a.shape[1:]), a.dtype) for a in arrays]
         ref_w, spec, *terms = out
-        _, ok = self._prep(self._ref_in, todo, lay.wy_ref[None], lay.wx_ref[None], ref_w)
+        wy, wx, e = ((lay.wy_cur, lay.wx_cur, lay.e_cur) if self._ref_as_cur
+                     else (lay.wy_ref, lay.wx_ref, lay.e_ref))
+        _, ok = self._prep(self._ref_in, todo, wy[None], wx[None], ref_w)
         fftbackend.rfft2(ref_w, spec)
-        self._ref_terms(spec, np.full(len(todo), lay.e_ref), tuple(terms))
+        self._ref_terms(spec, np.full(len(todo), e), tuple(terms))
         if todo[-1] - todo[0] + 1 != len(todo):
             for a, o in zip(arrays, out, strict=True):
                 a[todo] = o
@@ -537,7 +558,8 @@ class Correlator:
                     self._pass_pbox = np.empty(self._ref_fw.shape, np.float32)
                 if cache and self._fp_wconj is None:
                     self._fp_wconj = np.empty_like(self._ref_wconj)
-                    self._refc = fftbackend.empty(self._ref_wconj.shape, np.complex64)
+                    if not self._ref_as_cur:
+                        self._refc = fftbackend.empty(self._ref_wconj.shape, np.complex64)
                 parts = self._parallel(
                     lambda s: self._measure(cur_arr[s], idx[s],
                                             None if pred is None else pred[s], cache), n)
@@ -959,6 +981,8 @@ class Correlator:
         these blocks); with ``cache`` (rows unique) kept for the reference (they do not
         depend on any margin)."""
         lay = self._lay
+        if self._ref_as_cur:  # the detection's reference (made before the first pass)
+            return self._ref_spec, rows
         if not cache:
             ref_c, _ = self._prep(self._ref_in, rows, lay.wy_cur[None], lay.wx_cur[None],
                                   usable=False)
@@ -1140,8 +1164,8 @@ class Correlator:
         mg (m, 2, 2), and those windows (m, h), (m, w)."""
         lay = self._lay
         h, w = self.shape
-        wy = _pass_windows(h, lay.taper[0], mg[:, 0, 0], mg[:, 0, 1])
-        wx = _pass_windows(w, lay.taper[1], mg[:, 1, 0], mg[:, 1, 1])
+        wy = _margin_windows(h, lay.taper[0], mg[:, 0, 0], mg[:, 0, 1])
+        wx = _margin_windows(w, lay.taper[1], mg[:, 1, 0], mg[:, 1, 1])
         ref_w, _ = self._prep(self._ref_in, rows, wy, wx, usable=False)
         return fftbackend.rfft2(ref_w), wy, wx
 

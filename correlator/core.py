@@ -416,6 +416,13 @@ class Correlator:
         nw = o.workers
         self._threads = (os.cpu_count() or 1) if nw == -1 else max(1, int(nw))
         self._lock = threading.Lock()
+        masked = o.detection == "masked" or (o.detection == "auto"
+                                             and self.max_shift_px > min(h, w) / 4)
+        # the first pass's paths (default and one-FFT) window the reference as cur for the
+        # detection: its spectrum then is also the one the first pass's window bias needs
+        # (:meth:`_cur_window_reference`), so a reference is transformed once for both
+        self._ref_as_cur = (o.subpixel == "fourier" and o.rewindow is not True and not masked
+                            and o.method != "optical" and not o.joint_plane)
         # ---- the reference, once: windowed spectrum, noise, weights W conj(R), CRLB sums
         k = w // 2 + 1
         self._ref_w = fftbackend.empty((n, h, w), np.float32)
@@ -426,6 +433,8 @@ class Correlator:
         self._ref_bw = np.empty((n, len(lay.band_rows), lay.band_cols), np.float32)
         self._ref_m = np.zeros((n, 3, 3))
         self._ref_noise = np.zeros(n)
+        # the box means of its power, where the first pass's weights are made from them
+        self._ref_pbox = np.empty((n, h, k) if self._ref_as_cur else (0, 1, 1), np.float32)
 
         # computed per chunk just before its first measurement (while it is in cache)
         self._ref_ready = np.zeros(n, bool)
@@ -453,13 +462,6 @@ class Correlator:
         # the detection weights' stand-in where a reference has none (_ref_terms' detect)
         self._no_detect = (np.empty((0, h, k), np.float32),
                            np.empty((0, len(lay.band_rows), lay.band_cols), np.float32))
-        masked = o.detection == "masked" or (o.detection == "auto"
-                                             and self.max_shift_px > min(h, w) / 4)
-        # the first pass's paths (default and one-FFT) window the reference as cur for the
-        # detection: its spectrum then is also the one the first pass's window bias needs
-        # (:meth:`_cur_window_reference`), so a reference is transformed once for both
-        self._ref_as_cur = (o.subpixel == "fourier" and o.rewindow is not True and not masked
-                            and o.method != "optical" and not o.joint_plane)
         # unwindowed reference blocks less their means: for the masked search, Lucas-Kanade
         # and the optical emulation (made here, never by the worker threads)
         self._ref0 = None
@@ -494,21 +496,24 @@ class Correlator:
         todo = np.unique(rows[~ready])
         lay = self._lay
         arrays = (self._ref_w, self._ref_spec, self._ref_wconj, self._ref_fw, self._ref_bw,
-                  self._ref_m, self._ref_noise)
+                  self._ref_m, self._ref_noise, self._ref_pbox)
         if todo[-1] - todo[0] + 1 == len(todo):  # a run of blocks: write in place
             sel = slice(todo[0], todo[-1] + 1)
             out = [a[sel] for a in arrays]
         else:
-            out = [np.empty((len(todo), *a.shape[1:]), a.dtype) for a in arrays]
-        ref_w, spec, *terms = out
+            out = [np.empty((len(todo) if len(a) else 0, *a.shape[1:]), a.dtype)
+                   for a in arrays]
+        ref_w, spec, *terms, pbox = out
         wy, wx, e = ((lay.wy_cur, lay.wx_cur, lay.e_cur) if self._ref_as_cur
                      else (lay.wy_ref, lay.wx_ref, lay.e_ref))
         _, ok = self._prep(self._ref_in, todo, wy[None], wx[None], ref_w)
         fftbackend.rfft2(ref_w, spec)
-        self._ref_terms(spec, np.full(len(todo), e), tuple(terms))
+        self._ref_terms(spec, np.full(len(todo), e), tuple(terms),
+                        pbox=pbox if len(pbox) else None)
         if todo[-1] - todo[0] + 1 != len(todo):
             for a, o in zip(arrays, out, strict=True):
-                a[todo] = o
+                if len(a):
+                    a[todo] = o
         self._ref_ok[todo] = ok
         self._ref_ready[todo] = True
 
@@ -971,8 +976,19 @@ class Correlator:
         if out is None:
             out = (np.empty(spec.shape, np.complex64), np.zeros((n, 3, 3)), np.empty((n, 2)))
         wc, mm, bias_out = out
-        noise = np.empty(n)
-        self._ref_terms(spec, _energy(wy, wx), (wc, *self._no_detect, mm, noise))
+        energy = _energy(wy, wx)
+        if self._ref_as_cur and self.options.weighting == "snr":
+            # the weights from the power under cur's window (its box means, made with the
+            # detection's reference), scaled by the windows' energies: no second box average
+            noise = self._ref_noise[rows]
+            g = self._lay.full
+            kernels.scaled_weights(spec.view(np.float32), self._ref_pbox,
+                                   np.asarray(rows, dtype=np.int64), energy / self._lay.e_cur,
+                                   noise * energy, g.alpha, g.ay, g.ax, g.rows,
+                                   wc.view(np.float32), mm)
+        else:
+            noise = np.empty(n)
+            self._ref_terms(spec, energy, (wc, *self._no_detect, mm, noise))
         bias_out[...] = self._self_bias(wc, spec, np.arange(n), rows, noise, wy, wx, cache)
         return wc, mm, bias_out
 

@@ -418,11 +418,11 @@ class Correlator:
         self._lock = threading.Lock()
         masked = o.detection == "masked" or (o.detection == "auto"
                                              and self.max_shift_px > min(h, w) / 4)
-        # the first pass's paths (default and one-FFT) window the reference as cur for the
-        # detection: its spectrum then is also the one the first pass's window bias needs
-        # (:meth:`_cur_window_reference`), so a reference is transformed once for both
-        self._ref_as_cur = (o.subpixel == "fourier" and o.rewindow is not True and not masked
-                            and o.method != "optical" and not o.joint_plane)
+        # the first pass's paths (default and one-FFT) make its weights from the box means of
+        # the reference's power under the fixed window (:meth:`_window_reference`)
+        self._fp_from_power = (o.subpixel == "fourier" and o.rewindow is not True
+                               and not masked and o.method != "optical"
+                               and o.weighting == "snr")
         # ---- the reference, once: windowed spectrum, noise, weights W conj(R), CRLB sums
         k = w // 2 + 1
         self._ref_w = fftbackend.empty((n, h, w), np.float32)
@@ -434,7 +434,7 @@ class Correlator:
         self._ref_m = np.zeros((n, 3, 3))
         self._ref_noise = np.zeros(n)
         # the box means of its power, where the first pass's weights are made from them
-        self._ref_pbox = np.empty((n, h, k) if self._ref_as_cur else (0, 1, 1), np.float32)
+        self._ref_pbox = np.empty((n, h, k) if self._fp_from_power else (0, 1, 1), np.float32)
 
         # computed per chunk just before its first measurement (while it is in cache)
         self._ref_ready = np.zeros(n, bool)
@@ -504,11 +504,9 @@ class Correlator:
             out = [np.empty((len(todo) if len(a) else 0, *a.shape[1:]), a.dtype)
                    for a in arrays]
         ref_w, spec, *terms, pbox = out
-        wy, wx, e = ((lay.wy_cur, lay.wx_cur, lay.e_cur) if self._ref_as_cur
-                     else (lay.wy_ref, lay.wx_ref, lay.e_ref))
-        _, ok = self._prep(self._ref_in, todo, wy[None], wx[None], ref_w)
+        _, ok = self._prep(self._ref_in, todo, lay.wy_ref[None], lay.wx_ref[None], ref_w)
         fftbackend.rfft2(ref_w, spec)
-        self._ref_terms(spec, np.full(len(todo), e), tuple(terms),
+        self._ref_terms(spec, np.full(len(todo), lay.e_ref), tuple(terms),
                         pbox=pbox if len(pbox) else None)
         if todo[-1] - todo[0] + 1 != len(todo):
             for a, o in zip(arrays, out, strict=True):
@@ -563,8 +561,7 @@ class Correlator:
                     self._pass_pbox = np.empty(self._ref_fw.shape, np.float32)
                 if cache and self._fp_wconj is None:
                     self._fp_wconj = np.empty_like(self._ref_wconj)
-                    if not self._ref_as_cur:
-                        self._refc = fftbackend.empty(self._ref_wconj.shape, np.complex64)
+                    self._refc = fftbackend.empty(self._ref_wconj.shape, np.complex64)
                 parts = self._parallel(
                     lambda s: self._measure(cur_arr[s], idx[s],
                                             None if pred is None else pred[s], cache), n)
@@ -977,13 +974,13 @@ class Correlator:
             out = (np.empty(spec.shape, np.complex64), np.zeros((n, 3, 3)), np.empty((n, 2)))
         wc, mm, bias_out = out
         energy = _energy(wy, wx)
-        if self._ref_as_cur and self.options.weighting == "snr":
-            # the weights from the power under cur's window (its box means, made with the
+        if self._fp_from_power:
+            # the weights from the power under the fixed window (its box means, made with the
             # detection's reference), scaled by the windows' energies: no second box average
             noise = self._ref_noise[rows]
             g = self._lay.full
             kernels.scaled_weights(spec.view(np.float32), self._ref_pbox,
-                                   np.asarray(rows, dtype=np.int64), energy / self._lay.e_cur,
+                                   np.asarray(rows, dtype=np.int64), energy / self._lay.e_ref,
                                    noise * energy, g.alpha, g.ay, g.ax, g.rows,
                                    wc.view(np.float32), mm)
         else:
@@ -997,8 +994,6 @@ class Correlator:
         these blocks); with ``cache`` (rows unique) kept for the reference (they do not
         depend on any margin)."""
         lay = self._lay
-        if self._ref_as_cur:  # the detection's reference (made before the first pass)
-            return self._ref_spec, rows
         if not cache:
             ref_c, _ = self._prep(self._ref_in, rows, lay.wy_cur[None], lay.wx_cur[None],
                                   usable=False)

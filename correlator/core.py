@@ -134,8 +134,10 @@ BOTH_POWER_SE = 1.0
 #: ... and for the detection's whitening over 11 bins: selective weights (a wide average lets
 #: noise-dominated frequencies into the whitened surface and lowers the PSR of good matches)
 DETECT_SMOOTH_BINS = 11
-#: blocks per chunk of work (a 128^2 block's arrays take ~0.4 MB; 32 measured fastest here)
-CHUNK_BLOCKS = 32
+#: blocks per chunk of work (a 128^2 block's arrays take ~0.4 MB): one thread on 256 independent
+#: pairs in calls of 64, one process, alternated 5 times (load 8.9): chunks of 8 / 16 / 32 / 64
+#: took 844 / 742 / 691 / 623 us a pair (median): the per-call work outweighs the cache
+CHUNK_BLOCKS = 64
 #: the default path (``rewindow=None``) gives a block the common-content passes after its
 #: first pass (:meth:`Correlator._needs_precise`) when that pass predicts an error above
 #: ADAPT_MAX_CRLB_PX (px, either axis: weak or smooth texture; both images' weights raise

@@ -28,20 +28,20 @@ compiled kernels, :mod:`correlator.kernels`, on threads over the stack; FFTs thr
    from the spectrum (exact band-limited interpolation), first on the central band, then on the
    full band with Knapp-Carter SNR weights: the first pass, ref's window moved to the shift on
    the same cur spectrum, less the bias its unlike windows give (measured on the reference
-   against itself, :meth:`Correlator._window_reference`). Blocks moved by more than m, those
-   whose first pass needs them (:meth:`Correlator._needs_precise`; all with
+   against itself, :meth:`Correlator._window_reference`); its weights from the box means of the
+   reference's power under the fixed window, scaled by the windows' energies. Blocks moved by
+   more than m, those whose first pass needs them (:meth:`Correlator._needs_precise`; all with
    ``rewindow=True``) get passes with both windows on the common content: ref's zero within
    whole-pixel margins that hold the shift, cur's the same moved by the estimate (each block
-   less its window mean). A block's pass reference is kept while its margins hold, so a
-   tracker pays one cur FFT per pass. The passes' Knapp-Carter weights take the texture
-   power from both blocks: the box mean of (|R|^2 + |C|^2) / 2 less the noise and one
-   standard error of that mean (:data:`BOTH_POWER_SE`), whose estimation noise is half that
-   of the reference's power alone (cur's box mean is made on the block's first pass). The
-   weights are functions of the magnitudes only, so they do not pull the estimate towards
-   the lag at which they were made. The passes repeat to their fixed point
-   (Aitken-accelerated). ``gradient``: symmetric Lucas-Kanade on cubic B-splines.
-   ``parabolic``, ``gaussian``, ``com`` (the paper's centre of mass): 3-point fits on the
-   method's full surface.
+   less its window mean). A block's pass reference is kept while its margins hold, so a tracker
+   pays one cur FFT per pass. The passes' Knapp-Carter weights take the texture power from both
+   blocks: the box mean of (|R|^2 + |C|^2) / 2 less the noise and one standard error of that
+   mean (:data:`BOTH_POWER_SE`), whose estimation noise is half that of the reference's power
+   alone (cur's box mean is made on the block's first pass). The weights are functions of the
+   magnitudes only, so they do not pull the estimate towards the lag at which they were made.
+   The passes repeat to their fixed point (Aitken-accelerated). ``gradient``: symmetric
+   Lucas-Kanade on cubic B-splines. ``parabolic``, ``gaussian``, ``com`` (the paper's centre of
+   mass): 3-point fits on the method's full surface.
 5. ``crlb``: the predicted 1-sigma error H^-1 J H^-1 of this estimate from the pair's own
    spectra (after the passes, J from the same weights and (|R|^2 + |C|^2) / 2) and the noise
    level (estimated from the highest frequencies), equal to the Cramer-Rao bound

@@ -28,20 +28,20 @@ compiled kernels, :mod:`correlator.kernels`, on threads over the stack; FFTs thr
    from the spectrum (exact band-limited interpolation), first on the central band, then on the
    full band with Knapp-Carter SNR weights: the first pass, ref's window moved to the shift on
    the same cur spectrum, less the bias its unlike windows give (measured on the reference
-   against itself, :meth:`Correlator._window_reference`). Blocks moved by more than m, those
-   whose first pass needs them (:meth:`Correlator._needs_precise`; all with
+   against itself, :meth:`Correlator._window_reference`); its weights from the box means of the
+   reference's power under the fixed window, scaled by the windows' energies. Blocks moved by
+   more than m, those whose first pass needs them (:meth:`Correlator._needs_precise`; all with
    ``rewindow=True``) get passes with both windows on the common content: ref's zero within
    whole-pixel margins that hold the shift, cur's the same moved by the estimate (each block
-   less its window mean). A block's pass reference is kept while its margins hold, so a
-   tracker pays one cur FFT per pass. The passes' Knapp-Carter weights take the texture
-   power from both blocks: the box mean of (|R|^2 + |C|^2) / 2 less the noise and one
-   standard error of that mean (:data:`BOTH_POWER_SE`), whose estimation noise is half that
-   of the reference's power alone (cur's box mean is made on the block's first pass). The
-   weights are functions of the magnitudes only, so they do not pull the estimate towards
-   the lag at which they were made. The passes repeat to their fixed point
-   (Aitken-accelerated). ``gradient``: symmetric Lucas-Kanade on cubic B-splines.
-   ``parabolic``, ``gaussian``, ``com`` (the paper's centre of mass): 3-point fits on the
-   method's full surface.
+   less its window mean). A block's pass reference is kept while its margins hold, so a tracker
+   pays one cur FFT per pass. The passes' Knapp-Carter weights take the texture power from both
+   blocks: the box mean of (|R|^2 + |C|^2) / 2 less the noise and one standard error of that
+   mean (:data:`BOTH_POWER_SE`), whose estimation noise is half that of the reference's power
+   alone (cur's box mean is made on the block's first pass). The weights are functions of the
+   magnitudes only, so they do not pull the estimate towards the lag at which they were made.
+   The passes repeat to their fixed point (Aitken-accelerated). ``gradient``: symmetric
+   Lucas-Kanade on cubic B-splines. ``parabolic``, ``gaussian``, ``com`` (the paper's centre of
+   mass): 3-point fits on the method's full surface.
 5. ``crlb``: the predicted 1-sigma error H^-1 J H^-1 of this estimate from the pair's own
    spectra (after the passes, J from the same weights and (|R|^2 + |C|^2) / 2) and the noise
    level (estimated from the highest frequencies), equal to the Cramer-Rao bound
@@ -134,8 +134,10 @@ BOTH_POWER_SE = 1.0
 #: ... and for the detection's whitening over 11 bins: selective weights (a wide average lets
 #: noise-dominated frequencies into the whitened surface and lowers the PSR of good matches)
 DETECT_SMOOTH_BINS = 11
-#: blocks per chunk of work (a 128^2 block's arrays take ~0.4 MB; 32 measured fastest here)
-CHUNK_BLOCKS = 32
+#: blocks per chunk of work (a 128^2 block's arrays take ~0.4 MB): one thread on 256 independent
+#: pairs in calls of 64, one process, alternated 5 times (load 8.9): chunks of 8 / 16 / 32 / 64
+#: took 844 / 742 / 691 / 623 us a pair (median): the per-call work outweighs the cache
+CHUNK_BLOCKS = 64
 #: the default path (``rewindow=None``) gives a block the common-content passes after its
 #: first pass (:meth:`Correlator._needs_precise`) when that pass predicts an error above
 #: ADAPT_MAX_CRLB_PX (px, either axis: weak or smooth texture; both images' weights raise
@@ -312,6 +314,13 @@ class _Layout:
         return np.outer(self.wy_cur, self.wx_cur)
 
 
+@lru_cache(maxsize=16)
+def _layout(h: int, w: int) -> _Layout:
+    """The layout of (h, w) blocks, made once per shape (its arrays are read, never written:
+    every Correlator of that shape shares them)."""
+    return _Layout.of(h, w)
+
+
 def _energy(wy: np.ndarray, wx: np.ndarray) -> np.ndarray:
     """Sum of squares of separable windows wy (..., h) x wx (..., w)."""
     return ((wy.astype(np.float64) ** 2).sum(axis=-1)
@@ -341,6 +350,13 @@ def _pass_windows(n: int, taper: float, lo: np.ndarray, hi: np.ndarray,
     """Tukey windows (m, n) zero within lo (m,) px of the start and hi (m,) of the end,
     moved by ``shift`` px."""
     return spectral.tukey_1d(n, taper, 0.5 * (lo + hi), 0.5 * (lo - hi) + shift)
+
+
+def _margin_windows(n: int, taper: float, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """:func:`_pass_windows` (m, n) of whole-pixel margins lo, hi (m,) (no shift), each
+    distinct pair of margins made once (a stack holds a few)."""
+    u, inv = np.unique(lo * (n + 1) + hi, return_inverse=True)
+    return _pass_windows(n, taper, u // (n + 1), u % (n + 1))[inv.reshape(-1)]
 
 
 def _run_of(rows: np.ndarray) -> slice | None:
@@ -396,12 +412,19 @@ class Correlator:
         self._ref_in = _as_stack(ref, "ref")
         n, h, w = self._ref_in.shape
         self.shape = (h, w)
-        self._lay = lay = _Layout.of(h, w)
+        self._lay = lay = _layout(h, w)
         m = o.max_shift_px
         self.max_shift_px = float(min(h, w) // 4 if m is None else m)
         nw = o.workers
         self._threads = (os.cpu_count() or 1) if nw == -1 else max(1, int(nw))
         self._lock = threading.Lock()
+        masked = o.detection == "masked" or (o.detection == "auto"
+                                             and self.max_shift_px > min(h, w) / 4)
+        # the first pass's paths (default and one-FFT) make its weights from the box means of
+        # the reference's power under the fixed window (:meth:`_window_reference`)
+        self._fp_from_power = (o.subpixel == "fourier" and o.rewindow is not True
+                               and not masked and o.method != "optical"
+                               and o.weighting == "snr")
         # ---- the reference, once: windowed spectrum, noise, weights W conj(R), CRLB sums
         k = w // 2 + 1
         self._ref_w = fftbackend.empty((n, h, w), np.float32)
@@ -412,6 +435,8 @@ class Correlator:
         self._ref_bw = np.empty((n, len(lay.band_rows), lay.band_cols), np.float32)
         self._ref_m = np.zeros((n, 3, 3))
         self._ref_noise = np.zeros(n)
+        # the box means of its power, where the first pass's weights are made from them
+        self._ref_pbox = np.empty((n, h, k) if self._fp_from_power else (0, 1, 1), np.float32)
 
         # computed per chunk just before its first measurement (while it is in cache)
         self._ref_ready = np.zeros(n, bool)
@@ -439,8 +464,6 @@ class Correlator:
         # the detection weights' stand-in where a reference has none (_ref_terms' detect)
         self._no_detect = (np.empty((0, h, k), np.float32),
                            np.empty((0, len(lay.band_rows), lay.band_cols), np.float32))
-        masked = o.detection == "masked" or (o.detection == "auto"
-                                             and self.max_shift_px > min(h, w) / 4)
         # unwindowed reference blocks less their means: for the masked search, Lucas-Kanade
         # and the optical emulation (made here, never by the worker threads)
         self._ref0 = None
@@ -475,19 +498,22 @@ class Correlator:
         todo = np.unique(rows[~ready])
         lay = self._lay
         arrays = (self._ref_w, self._ref_spec, self._ref_wconj, self._ref_fw, self._ref_bw,
-                  self._ref_m, self._ref_noise)
+                  self._ref_m, self._ref_noise, self._ref_pbox)
         if todo[-1] - todo[0] + 1 == len(todo):  # a run of blocks: write in place
             sel = slice(todo[0], todo[-1] + 1)
             out = [a[sel] for a in arrays]
         else:
-            out = [np.empty((len(todo), *a.shape[1:]), a.dtype) for a in arrays]
-        ref_w, spec, *terms = out
+            out = [np.empty((len(todo) if len(a) else 0, *a.shape[1:]), a.dtype)
+                   for a in arrays]
+        ref_w, spec, *terms, pbox = out
         _, ok = self._prep(self._ref_in, todo, lay.wy_ref[None], lay.wx_ref[None], ref_w)
         fftbackend.rfft2(ref_w, spec)
-        self._ref_terms(spec, np.full(len(todo), lay.e_ref), tuple(terms))
+        self._ref_terms(spec, np.full(len(todo), lay.e_ref), tuple(terms),
+                        pbox=pbox if len(pbox) else None)
         if todo[-1] - todo[0] + 1 != len(todo):
             for a, o in zip(arrays, out, strict=True):
-                a[todo] = o
+                if len(a):
+                    a[todo] = o
         self._ref_ok[todo] = ok
         self._ref_ready[todo] = True
 
@@ -949,8 +975,19 @@ class Correlator:
         if out is None:
             out = (np.empty(spec.shape, np.complex64), np.zeros((n, 3, 3)), np.empty((n, 2)))
         wc, mm, bias_out = out
-        noise = np.empty(n)
-        self._ref_terms(spec, _energy(wy, wx), (wc, *self._no_detect, mm, noise))
+        energy = _energy(wy, wx)
+        if self._fp_from_power:
+            # the weights from the power under the fixed window (its box means, made with the
+            # detection's reference), scaled by the windows' energies: no second box average
+            noise = self._ref_noise[rows]
+            g = self._lay.full
+            kernels.scaled_weights(spec.view(np.float32), self._ref_pbox,
+                                   np.asarray(rows, dtype=np.int64), energy / self._lay.e_ref,
+                                   noise * energy, g.alpha, g.ay, g.ax, g.rows,
+                                   wc.view(np.float32), mm)
+        else:
+            noise = np.empty(n)
+            self._ref_terms(spec, energy, (wc, *self._no_detect, mm, noise))
         bias_out[...] = self._self_bias(wc, spec, np.arange(n), rows, noise, wy, wx, cache)
         return wc, mm, bias_out
 
@@ -1140,8 +1177,8 @@ class Correlator:
         mg (m, 2, 2), and those windows (m, h), (m, w)."""
         lay = self._lay
         h, w = self.shape
-        wy = _pass_windows(h, lay.taper[0], mg[:, 0, 0], mg[:, 0, 1])
-        wx = _pass_windows(w, lay.taper[1], mg[:, 1, 0], mg[:, 1, 1])
+        wy = _margin_windows(h, lay.taper[0], mg[:, 0, 0], mg[:, 0, 1])
+        wx = _margin_windows(w, lay.taper[1], mg[:, 1, 0], mg[:, 1, 1])
         ref_w, _ = self._prep(self._ref_in, rows, wy, wx, usable=False)
         return fftbackend.rfft2(ref_w), wy, wx
 

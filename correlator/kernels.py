@@ -3,7 +3,8 @@
 Each kernel loops over a stack of blocks and releases the GIL, so the correlator's threads run
 them in parallel. They fuse what numpy would do in several passes with temporaries: the
 window, mean and sanity statistics of a block (:func:`prep_blocks`); a reference's power,
-noise, Knapp-Carter weights and gradient sums (:func:`ref_spectra`); the cross spectrum with
+noise, Knapp-Carter weights and gradient sums (:func:`ref_spectra`; under a second window
+from the first's power, :func:`scaled_weights`); the cross spectrum with
 the noise and floor sums (:func:`cross_spectra`); the SNR-whitened band (:func:`whiten_band`);
 the peak, PSR and rival peak of a detection surface (:func:`detect`); Newton's method on
 the spectrum (:func:`newton`); and the common-content passes' weights from both blocks'
@@ -277,6 +278,46 @@ def ref_spectra(spec, imm, imm_norm, energy, box, box_det, flat, alpha, ay, ax, 
                 wr[2 * j] = wv * sr[2 * j]
                 wr[2 * j + 1] = -wv * sr[2 * j + 1]
                 q = alpha[j] * wv * wv * (p[i, j] - half_s2)
+                c0 += q
+                c1 += q * ax[j]
+                c2 += q * ax[j] * ax[j]
+            if rows[i] != 0.0:
+                _add_row_moments(m, b, rows[i], ay[i], c0, c1, c2)
+
+
+@nb.njit(**_JIT)
+def scaled_weights(spec, pbox, prow, scale, s2, alpha, ay, ax, rows, wconj, m):
+    """A reference's Knapp-Carter weights under a second window from the box means of its
+    power under the first: W = P / (2 P + s2) with P = max(scale pbox - s2, 0), pbox rows
+    ``prow`` (n,) of (N, h, k) float32 (:func:`ref_spectra`'s box means), ``scale`` (n,) the
+    ratio of the two windows' energies and s2 (n,) the noise power per bin under the second.
+    Writes wconj = W conj(R) and the CRLB sums m (n, 3, 3) of :func:`ref_spectra` for the
+    spectra ``spec`` (n, h, k) under the second window (complex arrays as their interleaved
+    float32 views): the weights without a second box average over the spectrum."""
+    n, h, k2 = spec.shape
+    k = k2 // 2
+    for b in range(n):
+        sn2 = np.float32(s2[b])
+        half_s2 = np.float32(0.5) * sn2
+        sc = np.float32(scale[b])
+        pb = pbox[prow[b]]
+        for a in range(3):
+            for c in range(3):
+                m[b, a, c] = 0.0
+        for i in range(h):
+            sr = spec[b, i]
+            wr = wconj[b, i]
+            c0 = np.float32(0.0)
+            c1 = np.float32(0.0)
+            c2 = np.float32(0.0)
+            for j in range(k):
+                ps = max(sc * pb[i, j] - sn2, np.float32(0.0))
+                wv = ps / (np.float32(2.0) * ps + sn2 + np.float32(1e-30))
+                re = sr[2 * j]
+                im = sr[2 * j + 1]
+                wr[2 * j] = wv * re
+                wr[2 * j + 1] = -wv * im
+                q = alpha[j] * wv * wv * (re * re + im * im - half_s2)
                 c0 += q
                 c1 += q * ax[j]
                 c2 += q * ax[j] * ax[j]

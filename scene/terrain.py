@@ -207,14 +207,18 @@ def procedural_terrain(
 
 def fractal_noise_window(shape: tuple[int, int], beta: float, rng: np.random.Generator,
                          rows: tuple[int, int], cols: tuple[int, int],
-                         cutoff_cycles: float = 1.0, chunk: int = 256) -> np.ndarray:
+                         cutoff_cycles: float = 1.0, chunk: int = 256,
+                         work: np.ndarray | None = None) -> np.ndarray:
     """The window ``[rows[0]:rows[1], cols[0]:cols[1]]`` of :func:`fractal_noise`'s field
     of ``shape`` drawn from ``rng`` (which it advances as that does), without its whole
-    inverse transform: the white noise's spectrum in full (drawn and transformed in chunks
-    of ``chunk`` rows or columns), the inverse along the rows only at the window's rows (a
-    DFT matrix product), the unit standard deviation from the spectrum's power (Parseval).
-    Equal to ``fractal_noise(shape, ...)[window]`` within the transforms' rounding (~1e-13
-    relative); a window of R rows costs ~R / 50 of the inverse's row pass.
+    inverse transform or any whole-field array but the spectrum: the white noise drawn and
+    transformed along the rows in chunks of ``chunk`` rows, then per chunk of columns the
+    transform along the columns, the filter, and the inverse along the columns kept at the
+    window's rows only; the inverse along the rows at those rows; the unit standard
+    deviation from the spectrum's power (Parseval). Equal to
+    ``fractal_noise(shape, ...)[window]`` within the transforms' rounding (~1e-13 relative).
+    ``work``: a complex128 array of (shape[0], shape[1] // 2 + 1) to hold the spectrum in
+    (a second field then faults no fresh pages in), or None.
 
     Returns
     -------
@@ -224,7 +228,7 @@ def fractal_noise_window(shape: tuple[int, int], beta: float, rng: np.random.Gen
 
     n0, n1 = shape
     h1 = n1 // 2 + 1
-    spec = np.empty((n0, h1), np.complex128)
+    spec = np.empty((n0, h1), np.complex128) if work is None else work
     buf = np.empty((min(chunk, n0), n1))
     for a in range(0, n0, chunk):
         k = min(chunk, n0 - a)
@@ -232,24 +236,23 @@ def fractal_noise_window(shape: tuple[int, int], beta: float, rng: np.random.Gen
         spec[a:a + k] = sfft.rfft(buf[:k], axis=1, workers=-1)
     fy = sfft.fftfreq(n0)[:, None] * n0
     fx = sfft.rfftfreq(n1)[None, :] * n1
-    r = np.arange(rows[0], rows[1])
-    ky = np.arange(n0)
-    # the inverse DFT along axis 0 at the window's rows (phases reduced exactly mod n0)
-    e_r = np.exp(2j * np.pi * ((r[:, None] * ky[None, :]) % n0) / n0) / n0
+    half = n0 // 2 + 1  # the filter's rows for ky >= 0; fftfreq's negative rows mirror them
+    mirror = np.r_[np.arange(half), n0 - np.arange(half, n0)]
     weight = np.full(h1, 2.0)  # the half spectrum's columns counted twice, but kx = 0, n1 / 2
     weight[0] = 1.0
     if n1 % 2 == 0:
         weight[-1] = 1.0
-    y = np.empty((r.size, h1), np.complex128)
+    y = np.empty((rows[1] - rows[0], h1), np.complex128)
     power = 0.0
     for c in range(0, h1, chunk):
         d = min(h1, c + chunk)
         z = sfft.fft(spec[:, c:d], axis=0, workers=-1)
-        z *= np.maximum(np.hypot(fy, fx[:, c:d]), cutoff_cycles) ** (-beta / 2.0)
+        z *= (np.maximum(np.hypot(fy[:half], fx[:, c:d]), cutoff_cycles)
+              ** (-beta / 2.0))[mirror]
         if c == 0:
             z[0, 0] = 0.0
         power += float(np.sum(weight[c:d] * (z.real ** 2 + z.imag ** 2)))
-        y[:, c:d] = e_r @ z
+        y[:, c:d] = sfft.ifft(z, axis=0, workers=-1, overwrite_x=True)[rows[0]:rows[1]]
     out = sfft.irfft(y, n=n1, axis=1, workers=-1)[:, cols[0]:cols[1]]
     return out / (np.sqrt(power) / (n0 * n1))
 
@@ -286,8 +289,11 @@ class ProceduralDraws:
 
         rng = copy.deepcopy(self.noise_rng)
         shape = (self.n, self.n)
-        texture = fractal_noise_window(shape, _TEXTURE[0], rng, rows, cols, _TEXTURE[1])
-        fine = fractal_noise_window(shape, _FINE[0], rng, rows, cols, _FINE[1])
+        work = np.empty((self.n, self.n // 2 + 1), np.complex128)  # both fields' spectra
+        texture = fractal_noise_window(shape, _TEXTURE[0], rng, rows, cols, _TEXTURE[1],
+                                       work=work)
+        fine = fractal_noise_window(shape, _FINE[0], rng, rows, cols, _FINE[1], work=work)
+        del work
         yy = np.arange(self.n, dtype=np.float32)[rows[0]:rows[1], None]
         xx = np.arange(self.n, dtype=np.float32)[None, cols[0]:cols[1]]
         rr, cc = np.meshgrid(np.arange(rows[0], rows[1]), np.arange(cols[0], cols[1]),

@@ -2,7 +2,9 @@
 
 A tile is centred on the ENU origin. Array row 0 is the northern edge, column 0 the western
 edge (a north-up image). Albedo texels are cells of ``texel_m``; DEM values sit on a node grid
-of ``dem_spacing_m`` whose outer nodes lie on the tile edges.
+of ``dem_spacing_m`` whose outer nodes lie on the tile edges. ``procedural_draws`` gives a
+procedural tile's DEM and any window of its albedo (the same texels) without building the
+whole albedo: what a bound on one frame's footprint needs of a large tile.
 """
 
 from __future__ import annotations

@@ -291,6 +291,7 @@ c = evaluate(d, crlb_px=crlb, workers=workers)
 wall = time.perf_counter() - t0
 cpu = time.process_time() - c0
 kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+me = resource.getrusage(resource.RUSAGE_SELF)
 front = pareto_front(c.cost, c.worst)
 chosen, _ = choose(c, d.config.margin)
 np.savez(out, feasible=c.feasible, worst=c.worst, cost=c.cost, front=front,
@@ -298,6 +299,8 @@ np.savez(out, feasible=c.feasible, worst=c.worst, cost=c.cost, front=front,
          **{"p:" + k: v for k, v in c.predicted.items()})
 print(json.dumps({"n": len(c), "loops": c.n_loops, "wall_s": wall, "cpu_s": cpu,
                   "cpu_children_s": kids.ru_utime + kids.ru_stime, "loop_s": c.loop_s,
+                  "sys_s": me.ru_stime, "sys_children_s": kids.ru_stime,
+                  "max_rss_mb": me.ru_maxrss / 1024, "max_rss_children_mb": kids.ru_maxrss / 1024,
                   "base_s": getattr(c, "base_s", None), "feasible": int(c.feasible.sum()),
                   "front": len(front), "chosen": chosen, "load_before": load0,
                   "load_after": os.getloadavg()[0], "bandwidths": len(_values(bw))}))
@@ -355,7 +358,9 @@ def speed(designs: list[str], workers: list[int], min_n: int, compare: Path | No
             print(f"{design} {name} ({tree}), {nw} worker(s): {r['n']} candidates "
                   f"({r['loops']} loops) in {r['wall_s']:.1f} s wall, "
                   f"{r['cpu_s'] + r['cpu_children_s']:.1f} s CPU ({r['cpu_children_s']:.1f} "
-                  f"in workers): {r['n'] / r['wall_s']:.0f} candidates/s; load "
+                  f"in workers; system {r['sys_s'] + r['sys_children_s']:.1f}), peak RSS "
+                  f"{r['max_rss_mb']:.0f} MB (a worker's {r['max_rss_children_mb']:.0f}): "
+                  f"{r['n'] / r['wall_s']:.0f} candidates/s; load "
                   f"{r['load_before']:.1f} -> {r['load_after']:.1f}; {r['feasible']} "
                   f"feasible, front {r['front']}, chosen {r['chosen']}", flush=True)
         if compare is not None:
@@ -369,6 +374,84 @@ def speed(designs: list[str], workers: list[int], min_n: int, compare: Path | No
     return rows
 
 
+#: one side of the bound's equivalence in a fresh process: the base's frame 0 from the
+#: whole tile ('whole': build_models + base_image, what the search did) or from the
+#: albedo under the footprint ('footprint': bound_frame0), then the bound per block size
+_BOUND_CHILD = r"""
+import json, os, resource, sys, time
+import numpy as np
+from imc.workflow.design import load_design
+from imc.workflow.predict import bound_frame0, tracker_bound, tracker_bounds
+path, how, out = sys.argv[1], sys.argv[2], sys.argv[3]
+d = load_design(path)
+fid = d.config.verify.fidelity
+load0 = os.getloadavg()[0]
+c0, t0 = time.process_time(), time.perf_counter()
+if how == "whole":
+    from imc.wiring.build import build_models
+    from imc.wiring.rendered_plant import base_image
+    m = build_models(d.base)
+    rad = base_image(m, 0)
+else:
+    m, rad = bound_frame0(d.base, fid)
+scene_cpu = time.process_time() - c0
+table = tracker_bounds(m, d.config.free.block_px, fid, radiance=rad)
+crlb, kept = tracker_bound(m, fid, radiance=rad)
+me = resource.getrusage(resource.RUSAGE_SELF)
+np.save(out, rad)
+print(json.dumps({"how": how, "wall_s": time.perf_counter() - t0,
+                  "cpu_s": time.process_time() - c0, "scene_cpu_s": scene_cpu,
+                  "user_s": me.ru_utime, "sys_s": me.ru_stime,
+                  "max_rss_mb": me.ru_maxrss / 1024, "load_before": load0,
+                  "load_after": os.getloadavg()[0],
+                  "bounds": {str(k): list(v) for k, v in table.items()},
+                  "base_bound": [float(x) for x in crlb], "base_kept": kept}))
+"""
+
+
+def bound_equivalence(designs: list[str]) -> list[dict]:
+    """The tracker's bound per block size (and the record's base bound) of each bundled
+    design from frame 0 made on the whole tile and on the albedo under the footprint only
+    (:func:`imc.workflow.predict.bound_frame0`), each in a fresh process: their CPU time,
+    peak RSS, and the largest relative difference of the bounds."""
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, PYTHONPATH=str(ROOT), RERUN_TELEMETRY_ENABLED="0")
+    rows = []
+    for design in designs:
+        path = ROOT / "scenarios" / "designs" / f"{design}.yaml"
+        got = {}
+        for how in ("footprint", "whole"):
+            out = OUT / f"frame0_{design}_{how}.npy"
+            res = subprocess.run([sys.executable, "-c", _BOUND_CHILD, str(path), how,
+                                  str(out)], env=env, cwd=ROOT, capture_output=True,
+                                 text=True, check=True)
+            got[how] = json.loads(res.stdout.strip().splitlines()[-1])
+            r = got[how]
+            print(f"{design} {how}: {r['wall_s']:.1f} s wall, {r['cpu_s']:.1f} s CPU (the "
+                  f"scene and frame 0 {r['scene_cpu_s']:.1f}; process user {r['user_s']:.1f}"
+                  f" + system {r['sys_s']:.1f}), peak RSS {r['max_rss_mb']:.0f} MB, load "
+                  f"{r['load_before']:.1f} -> {r['load_after']:.1f}; bound per block size "
+                  + ", ".join(f"{k} px {v[0]:.6f} (valid {v[1]:.4f})"
+                              for k, v in r["bounds"].items()), flush=True)
+        a, b = got["footprint"], got["whole"]
+        rel = max([abs(a["bounds"][k][0] / b["bounds"][k][0] - 1.0) for k in b["bounds"]]
+                  + [abs(x / y - 1.0) for x, y in zip(a["base_bound"], b["base_bound"],
+                                                     strict=True)])
+        same = bool(np.array_equal(np.load(OUT / f"frame0_{design}_footprint.npy"),
+                                   np.load(OUT / f"frame0_{design}_whole.npy")))
+        print(f"  -> {design}: frame 0 bit-identical {same}; largest relative difference of "
+              f"the bounds {rel:.1e}; p_valid equal "
+              f"{all(a['bounds'][k][1] == b['bounds'][k][1] for k in b['bounds'])}; "
+              f"CPU whole / footprint x{b['cpu_s'] / a['cpu_s']:.1f}, peak RSS "
+              f"x{b['max_rss_mb'] / a['max_rss_mb']:.1f}", flush=True)
+        rows.append({"design": design, "footprint": a, "whole": b, "frame0_identical": same,
+                     "max_relative_difference": rel})
+    return rows
+
+
 # ------------------------------------------------------------------------------ main
 
 
@@ -378,6 +461,8 @@ def main() -> None:
     ap.add_argument("--design", default=str(ROOT / "scenarios" / "designs" /
                                             "quickstart_frame.yaml"))
     ap.add_argument("--workers", type=int, nargs="*", default=[2])
+    ap.add_argument("--bounds", action="store_true", help="the tracker's bound per block "
+                    "size on the whole tile against the footprint's albedo (--designs)")
     ap.add_argument("--speed", action="store_true", help="the search's speed on the bundled "
                     "designs (--designs), each in its own process, against --compare")
     ap.add_argument("--designs", nargs="*", default=["quickstart_frame",
@@ -428,6 +513,9 @@ def main() -> None:
         judged = [r for r in rows if r["judged"] and r["meets"] is not None]
         print(f"judged: {sum(r['meets'] for r in judged)} of {len(judged)} within target")
         return
+    if args.bounds:
+        rows = bound_equivalence(args.designs)
+        (OUT / "bounds.json").write_text(json.dumps(rows, indent=1))
     if args.speed:
         rows = speed(args.designs, args.workers, args.min_candidates,
                      Path(args.compare) if args.compare else None, args.crlb_px)

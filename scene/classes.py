@@ -360,13 +360,18 @@ _GENERATORS = {"urban": urban, "rural": rural, "mountain": mountain, "waves": wa
                "calm_water": calm_water}
 
 
+def class_relief_m(kind: str, size_m: float, relief_rms_m: float | None = None) -> float:
+    """A scene class's RMS relief (m): ``relief_rms_m`` if given, else the class's default
+    (a mountain tile's grows with its side ``size_m``)."""
+    relief = DEFAULT_RELIEF_M.get(kind, 0.0) if relief_rms_m is None else relief_rms_m
+    return MOUNTAIN_RELIEF_PER_SIZE * size_m if relief is None else relief
+
+
 def scene_class(kind: str, size_m: float, texel_m: float, dem_spacing_m: float,
                 rng: np.random.Generator, relief_rms_m: float | None = None,
                 sun_azimuth_deg: float = 140.0) -> Terrain:
     """A seeded tile of one scene class ('procedural' is the generic rural/suburban tile)."""
-    relief = DEFAULT_RELIEF_M.get(kind, 0.0) if relief_rms_m is None else relief_rms_m
-    if relief is None:
-        relief = MOUNTAIN_RELIEF_PER_SIZE * size_m
+    relief = class_relief_m(kind, size_m, relief_rms_m)
     if kind == "procedural":
         return procedural_terrain(size_m, texel_m, dem_spacing_m, relief, rng)
     if kind not in _GENERATORS:

@@ -2,11 +2,14 @@
 
 A tile is centred on the ENU origin. Array row 0 is the northern edge, column 0 the western
 edge (a north-up image). Albedo texels are cells of ``texel_m``; DEM values sit on a node grid
-of ``dem_spacing_m`` whose outer nodes lie on the tile edges.
+of ``dem_spacing_m`` whose outer nodes lie on the tile edges. ``procedural_draws`` gives a
+procedural tile's DEM and any window of its albedo (the same texels) without building the
+whole albedo: what a bound on one frame's footprint needs of a large tile.
 """
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -138,6 +141,41 @@ def nearest_seed(seeds: np.ndarray, n: int, block_px: int = 8) -> np.ndarray:
     return labels
 
 
+#: the procedural tile's two fractal textures: (spectral exponent beta, cutoff in cycles per
+#: tile) of the field-scale texture and of the fine grain
+_TEXTURE = (2.2, 2.0)
+_FINE = (1.2, 4.0)
+
+
+def _fields(size_m: float, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """The procedural tile's field patches: seed points (N, 2) (row, col) texels and each
+    field's albedo (N,)."""
+    n_fields = max(4, int((size_m / 60.0) ** 2))
+    seeds = rng.uniform(0, n, size=(n_fields, 2))
+    return seeds, rng.uniform(0.12, 0.45, size=n_fields)
+
+
+def _roads(n: int, rng: np.random.Generator) -> tuple[tuple[np.ndarray, float], ...]:
+    """Three straight roads: a point (row, col) texels and a direction, rad."""
+    out = []
+    for _ in range(3):
+        p = rng.uniform(0, n, size=2)
+        out.append((p, rng.uniform(0, np.pi)))
+    return tuple(out)
+
+
+def _mix(fields: np.ndarray, texture: np.ndarray, fine: np.ndarray, roads, yy: np.ndarray,
+         xx: np.ndarray, texel_m: float) -> np.ndarray:
+    """The procedural albedo (float32) from its parts on a grid of texels (rows ``yy``
+    (R, 1), columns ``xx`` (1, C), float32 texel indices): fields x (1 + 0.25 texture) +
+    0.04 fine, and the roads ~6 m wide."""
+    albedo = fields * (1.0 + 0.25 * texture) + 0.04 * fine
+    for p, ang in roads:
+        dist = np.abs((yy - p[0]) * np.cos(ang) - (xx - p[1]) * np.sin(ang)) * texel_m
+        albedo = np.where(dist < 3.0, 0.55 + 0.02 * fine, albedo)
+    return np.clip(albedo, 0.02, 0.95).astype(np.float32)
+
+
 def procedural_terrain(
     size_m: float,
     texel_m: float,
@@ -149,30 +187,142 @@ def procedural_terrain(
 
     The albedo mixes Voronoi field patches (each its own brightness), a multi-scale fractal
     texture (power spectrum ~ f^-2.2, natural-image-like) and a few straight roads; the DEM is a
-    smooth fractal surface with the requested RMS relief.
+    smooth fractal surface with the requested RMS relief. :func:`procedural_draws` gives the
+    same tile's DEM and any window of its albedo without building the whole albedo.
     """
     n = int(round(size_m / texel_m))
     m = int(round(size_m / dem_spacing_m)) + 1
     if n < 16 or m < 3:
         raise ValueError("scene tile too small for its texel size / DEM spacing")
     # field patches: nearest of random seed points, each cell its own albedo
-    n_fields = max(4, int((size_m / 60.0) ** 2))
-    seeds = rng.uniform(0, n, size=(n_fields, 2))
+    seeds, field_albedo = _fields(size_m, n, rng)
     yy = np.arange(n, dtype=np.float32)[:, None]  # (row, col) of every texel, broadcast
     xx = np.arange(n, dtype=np.float32)[None, :]
-    idx = nearest_seed(seeds, n)
-    field_albedo = rng.uniform(0.12, 0.45, size=n_fields)
-    fields = field_albedo[idx]
-    texture = fractal_noise((n, n), 2.2, rng, cutoff_cycles=2.0)
-    fine = fractal_noise((n, n), 1.2, rng, cutoff_cycles=4.0)
-    albedo = fields * (1.0 + 0.25 * texture) + 0.04 * fine
-    # roads: a few straight bright lines ~ 6 m wide
-    for _ in range(3):
-        p = rng.uniform(0, n, size=2)
-        ang = rng.uniform(0, np.pi)
-        dist = np.abs((yy - p[0]) * np.cos(ang) - (xx - p[1]) * np.sin(ang)) * texel_m
-        albedo = np.where(dist < 3.0, 0.55 + 0.02 * fine, albedo)
-    albedo = np.clip(albedo, 0.02, 0.95).astype(np.float32)
+    fields = field_albedo[nearest_seed(seeds, n)]
+    texture = fractal_noise((n, n), _TEXTURE[0], rng, cutoff_cycles=_TEXTURE[1])
+    fine = fractal_noise((n, n), _FINE[0], rng, cutoff_cycles=_FINE[1])
+    albedo = _mix(fields, texture, fine, _roads(n, rng), yy, xx, texel_m)
     dem = fractal_noise((m, m), 3.5, rng, cutoff_cycles=1.0) * relief_rms_m
     return Terrain(albedo=albedo, texel_m=texel_m, dem_m=dem.astype(np.float32),
                    dem_spacing_m=dem_spacing_m)
+
+
+def fractal_noise_window(shape: tuple[int, int], beta: float, rng: np.random.Generator,
+                         rows: tuple[int, int], cols: tuple[int, int],
+                         cutoff_cycles: float = 1.0, chunk: int = 256,
+                         work: np.ndarray | None = None) -> np.ndarray:
+    """The window ``[rows[0]:rows[1], cols[0]:cols[1]]`` of :func:`fractal_noise`'s field
+    of ``shape`` drawn from ``rng`` (which it advances as that does), without its whole
+    inverse transform or any whole-field array but the spectrum: the white noise drawn and
+    transformed along the rows in chunks of ``chunk`` rows, then per chunk of columns the
+    transform along the columns, the filter, and the inverse along the columns kept at the
+    window's rows only; the inverse along the rows at those rows; the unit standard
+    deviation from the spectrum's power (Parseval). Equal to
+    ``fractal_noise(shape, ...)[window]`` within the transforms' rounding (~1e-13 relative).
+    ``work``: a complex128 array of (shape[0], shape[1] // 2 + 1) to hold the spectrum in
+    (a second field then faults no fresh pages in), or None.
+
+    Returns
+    -------
+    (rows, cols) float64 array, unit-std over the whole field, dimensionless.
+    """
+    import scipy.fft as sfft
+
+    n0, n1 = shape
+    h1 = n1 // 2 + 1
+    spec = np.empty((n0, h1), np.complex128) if work is None else work
+    buf = np.empty((min(chunk, n0), n1))
+    for a in range(0, n0, chunk):
+        k = min(chunk, n0 - a)
+        rng.standard_normal(out=buf[:k])
+        spec[a:a + k] = sfft.rfft(buf[:k], axis=1, workers=-1)
+    fy = sfft.fftfreq(n0)[:, None] * n0
+    fx = sfft.rfftfreq(n1)[None, :] * n1
+    half = n0 // 2 + 1  # the filter's rows for ky >= 0; fftfreq's negative rows mirror them
+    mirror = np.r_[np.arange(half), n0 - np.arange(half, n0)]
+    weight = np.full(h1, 2.0)  # the half spectrum's columns counted twice, but kx = 0, n1 / 2
+    weight[0] = 1.0
+    if n1 % 2 == 0:
+        weight[-1] = 1.0
+    y = np.empty((rows[1] - rows[0], h1), np.complex128)
+    power = 0.0
+    for c in range(0, h1, chunk):
+        d = min(h1, c + chunk)
+        z = sfft.fft(spec[:, c:d], axis=0, workers=-1)
+        z *= (np.maximum(np.hypot(fy[:half], fx[:, c:d]), cutoff_cycles)
+              ** (-beta / 2.0))[mirror]
+        if c == 0:
+            z[0, 0] = 0.0
+        power += float(np.sum(weight[c:d] * (z.real ** 2 + z.imag ** 2)))
+        y[:, c:d] = sfft.ifft(z, axis=0, workers=-1, overwrite_x=True)[rows[0]:rows[1]]
+    out = sfft.irfft(y, n=n1, axis=1, workers=-1)[:, cols[0]:cols[1]]
+    return out / (np.sqrt(power) / (n0 * n1))
+
+
+@dataclass(frozen=True)
+class ProceduralDraws:
+    """A procedural tile (:func:`procedural_terrain`) as its random draws, without its
+    albedo: the tile's geometry (:meth:`geometry`: its DEM and size) and any window of its
+    albedo (:meth:`albedo_window`) built from them."""
+
+    size_m: float
+    texel_m: float
+    dem_spacing_m: float
+    #: the albedo's side, texels
+    n: int
+    seeds: np.ndarray
+    field_albedo: np.ndarray
+    #: the stream as it stood before the textures' white noise
+    noise_rng: np.random.Generator
+    roads: tuple
+    dem_m: np.ndarray
+
+    def geometry(self) -> Terrain:
+        """The tile's DEM and size, with a flat 16 x 16 stand-in albedo (the albedo is
+        :meth:`albedo_window`'s): ground points, coverage and flow as on the whole tile."""
+        return Terrain(np.zeros((16, 16), np.float32), self.n * self.texel_m / 16.0,
+                       self.dem_m, self.dem_spacing_m)
+
+    def albedo_window(self, rows: tuple[int, int], cols: tuple[int, int]) -> np.ndarray:
+        """The tile's albedo ``[rows[0]:rows[1], cols[0]:cols[1]]`` (float32, texels):
+        :func:`procedural_terrain`'s within its transforms' rounding (a texel's float32
+        value may differ by one unit in the last place)."""
+        from scipy.spatial import cKDTree
+
+        rng = copy.deepcopy(self.noise_rng)
+        shape = (self.n, self.n)
+        work = np.empty((self.n, self.n // 2 + 1), np.complex128)  # both fields' spectra
+        texture = fractal_noise_window(shape, _TEXTURE[0], rng, rows, cols, _TEXTURE[1],
+                                       work=work)
+        fine = fractal_noise_window(shape, _FINE[0], rng, rows, cols, _FINE[1], work=work)
+        del work
+        yy = np.arange(self.n, dtype=np.float32)[rows[0]:rows[1], None]
+        xx = np.arange(self.n, dtype=np.float32)[None, cols[0]:cols[1]]
+        rr, cc = np.meshgrid(np.arange(rows[0], rows[1]), np.arange(cols[0], cols[1]),
+                             indexing="ij")
+        _, idx = cKDTree(self.seeds).query(np.column_stack([rr.ravel(), cc.ravel()])
+                                           .astype(np.float64))
+        fields = self.field_albedo[idx.reshape(rr.shape)]
+        return _mix(fields, texture, fine, self.roads, yy, xx, self.texel_m)
+
+
+def procedural_draws(size_m: float, texel_m: float, dem_spacing_m: float,
+                     relief_rms_m: float, rng: np.random.Generator,
+                     chunk: int = 256) -> ProceduralDraws:
+    """:func:`procedural_terrain`'s tile as its draws from ``rng`` (advanced as that
+    advances it): the textures' white noise is drawn in chunks of ``chunk`` rows and
+    dropped (:meth:`ProceduralDraws.albedo_window` draws it again), the DEM built."""
+    n = int(round(size_m / texel_m))
+    m = int(round(size_m / dem_spacing_m)) + 1
+    if n < 16 or m < 3:
+        raise ValueError("scene tile too small for its texel size / DEM spacing")
+    seeds, field_albedo = _fields(size_m, n, rng)
+    noise_rng = copy.deepcopy(rng)
+    buf = np.empty((min(chunk, n), n))
+    for _ in range(2):  # the texture's and the fine grain's white noise
+        for a in range(0, n, chunk):
+            rng.standard_normal(out=buf[:min(chunk, n - a)])
+    roads = _roads(n, rng)
+    dem = fractal_noise((m, m), 3.5, rng, cutoff_cycles=1.0) * relief_rms_m
+    return ProceduralDraws(size_m, texel_m, dem_spacing_m, n, seeds, field_albedo, noise_rng,
+                           roads, dem.astype(np.float32))

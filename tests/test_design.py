@@ -532,3 +532,72 @@ def test_the_shared_pixel_record_predictor_reproduces_the_pixels_noise():
                                                           n).cov_px2)
     for key in ("predicted_constant", "predicted_affine"):
         assert np.allclose(one[key], indep[key], rtol=1e-9)
+
+
+@pytest.mark.parametrize("size_m, texel_m, dem_m", [(704.0, 1.6, 16.0), (641.6, 1.6, 16.04)])
+def test_a_procedural_tiles_albedo_window_is_the_whole_tiles(size_m, texel_m, dem_m):
+    """The tile's draws (DEM, field seeds, roads) and any window of its albedo built alone
+    equal the whole tile's (an even and an odd side; windows at the corners and inside),
+    and the stream is left where the whole tile leaves it."""
+    from scene.terrain import procedural_draws, procedural_terrain
+
+    g_full, g_draws = np.random.default_rng(11), np.random.default_rng(11)
+    full = procedural_terrain(size_m, texel_m, dem_m, 15.0, g_full)
+    draws = procedural_draws(size_m, texel_m, dem_m, 15.0, g_draws)
+    assert g_full.random() == g_draws.random()
+    geo = draws.geometry()
+    assert geo.size_m == full.size_m and np.array_equal(geo.dem_m, full.dem_m)
+    n = draws.n
+    assert full.albedo.shape == (n, n) and n % 2 == (0 if size_m == 704.0 else 1)
+    for rows, cols in (((0, 37), (n - 60, n)), ((101, 230), (5, 140)), ((n - 9, n), (0, n))):
+        w = draws.albedo_window(rows, cols)
+        ref = full.albedo[rows[0]:rows[1], cols[0]:cols[1]]
+        assert w.dtype == np.float32 and w.shape == ref.shape
+        # the transforms' rounding (~1e-13) may move a float32 value by one unit in the
+        # last place, and only rarely
+        ulp = np.spacing(ref)
+        assert np.all(np.abs(w - ref) <= ulp)
+        assert np.mean(w != ref) <= 1e-3
+        assert np.std(ref) > 0.02  # a textured window, not a constant
+
+
+def _scan_base() -> dict:
+    """no_stage's pushbroom on a short strip: frame 0's footprint lies off the tile's
+    centre."""
+    d = yaml.safe_load((ROOT / "scenarios" / "no_stage.yaml").read_text())
+    d.pop("expect")
+    d.update(duration_s=0.1)
+    d["scene"].update(size_m=1408.0)
+    d["camera"]["tracker"].update(rows=128, cols=128)
+    d["correlator"].update(block_px=32)
+    d["product"]["enabled"] = False
+    return d
+
+
+@pytest.mark.parametrize("base, texel_m", [("quickstart", None), ("quickstart", 0.25),
+                                           ("scan", None)])
+def test_the_bounds_on_the_footprints_albedo_equal_the_whole_tiles(base, texel_m):
+    """The tracker's bounds per block size (and the record's base bound) on frame 0 made
+    from the albedo under the footprint alone (:func:`bound_frame0`) equal those on the
+    whole tile, bit for bit: a staring view, the same with the albedo smoothed to the GSD
+    (texels finer than the ground sample), and a scan whose footprint is off-centre."""
+    from imc.wiring.build import build_models
+    from imc.wiring.rendered_plant import base_image
+    from imc.workflow.predict import bound_frame0, tracker_bound, tracker_bounds
+
+    d = _base() if base == "quickstart" else _scan_base()
+    if texel_m is not None:
+        d["scene"]["texel_m"] = texel_m
+    sc = parse_scenario(d)
+    m_new, rad_new = bound_frame0(sc, "texture")
+    assert m_new.terrain.albedo.shape == (16, 16)  # the whole albedo was not built
+    m_old = build_models(sc)
+    rad_old = base_image(m_old, 0)
+    assert np.array_equal(rad_new, rad_old) and np.std(rad_old) > 0.01
+    sizes = [32, 64]
+    new = tracker_bounds(m_new, sizes, "texture", radiance=rad_new)
+    old = tracker_bounds(m_old, sizes, "texture")
+    assert new == old and all(np.isfinite(v[0]) for v in old.values())
+    b_new, b_old = tracker_bound(m_new, radiance=rad_new), tracker_bound(m_old)
+    assert np.array_equal(b_new[0], b_old[0]) and b_new[1] == b_old[1]
+    assert m_new.chain == m_old.chain

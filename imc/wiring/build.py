@@ -34,9 +34,10 @@ from orbit.kepler import EarthOrbit, Orbit
 from orbit.sun import sun_elevation_azimuth_deg
 from orbit.suspension import Suspension
 from orbit.tle import TleOrbit
-from scene.classes import CloudLayer, cloud_cell_m, cloud_layer, scene_class
+from scene.classes import CloudLayer, class_relief_m, cloud_cell_m, cloud_layer, scene_class
 from scene.geotiff import GeoTiffError, nodata_in_view, terrain_from_geotiff
-from scene.terrain import Terrain, flat_terrain
+from scene.terrain import ProceduralDraws, Terrain, flat_terrain
+from scene.terrain import procedural_draws as scene_procedural_draws
 
 
 @dataclass(frozen=True)
@@ -228,15 +229,18 @@ def build_jitter_series(sc: Scenario, ifov_rad: float, orbit: EarthOrbit | None,
     return series
 
 
-def build_scene(sc: Scenario, light: bool = False
+def build_scene(sc: Scenario, light: bool = False, terrain: Terrain | None = None
                 ) -> tuple[Terrain, CloudLayer | None, tuple[float, float], tuple[float, float]]:
     """Terrain, cloud layer, centre (lat, lon) deg and sun (elevation, azimuth) deg.
     ``light`` (imc validate): a tile above budget.LIGHT_TEXELS is a flat stand-in of the same
     size and DEM grid, a GeoTIFF is read decimated (<= 2048 px a side), and no cloud layer is
-    built."""
+    built. ``terrain``: a tile built already (e.g. :func:`procedural_draws`'s geometry, the
+    scene's DEM without its albedo), used instead of building one."""
     s = sc.scene
     centre = (s.center_lat_deg, s.center_lon_deg)
-    if s.kind == "geotiff":
+    if terrain is not None:
+        pass
+    elif s.kind == "geotiff":
         g = s.geotiff
         try:
             terrain, file_centre = terrain_from_geotiff(g.ortho, g.dem, s.dem_spacing_m,
@@ -256,7 +260,9 @@ def build_scene(sc: Scenario, light: bool = False
                 f"{sc.orbit.epoch_utc} at ({centre[0]}, {centre[1]}); choose a daytime epoch "
                 "or set scene.sun_elevation_deg and sun_azimuth_deg")
         sun = (float(el), float(az))
-    if s.kind != "geotiff" and light and round(s.size_m / s.texel_m) ** 2 > LIGHT_TEXELS:
+    if terrain is not None:
+        pass
+    elif s.kind != "geotiff" and light and round(s.size_m / s.texel_m) ** 2 > LIGHT_TEXELS:
         terrain = flat_terrain(s.size_m, s.dem_spacing_m)
     elif s.kind != "geotiff":
         try:
@@ -279,10 +285,26 @@ def build_scene(sc: Scenario, light: bool = False
     return terrain, clouds, centre, sun
 
 
-def build_models(sc: Scenario, light: bool = False) -> Models:
+def procedural_draws(sc: Scenario) -> ProceduralDraws | None:
+    """The scenario's procedural tile as its draws from the scene's stream
+    (:func:`scene.terrain.procedural_draws`: the tile's DEM, and any window of the albedo
+    :func:`build_scene` would build); None for the other scene kinds."""
+    s = sc.scene
+    if s.kind != "procedural":
+        return None
+    try:
+        return scene_procedural_draws(s.size_m, s.texel_m, s.dem_spacing_m,
+                                      class_relief_m(s.kind, s.size_m, s.relief_rms_m),
+                                      streams.rng(sc.seed, "terrain"))
+    except ValueError as e:
+        raise ScenarioError(f"scene: {e}") from None
+
+
+def build_models(sc: Scenario, light: bool = False, terrain: Terrain | None = None
+                 ) -> Models:
     """Build orbit, attitude, camera, terrain and loop models; validate the geometry
-    (``light``: see :func:`build_scene`)."""
-    terrain, clouds, centre, sun = build_scene(sc, light)
+    (``light``, ``terrain``: see :func:`build_scene`)."""
+    terrain, clouds, centre, sun = build_scene(sc, light, terrain)
     if centre != (sc.scene.center_lat_deg, sc.scene.center_lon_deg):
         sc = sc.model_copy(update={"scene": sc.scene.model_copy(
             update={"center_lat_deg": centre[0], "center_lon_deg": centre[1]})})

@@ -326,15 +326,14 @@ class TexturePlant(TrackerPlant):
         return acc.reshape(src.shape[:-1]).mean(axis=0)
 
 
-def base_image(m: Models, margin_px: int | np.ndarray,
-               after_px: int | np.ndarray | None = None) -> np.ndarray:
-    """The scene's albedo at every tracker pixel at t = 0 (through the camera model and the
-    DEM), with ``margin_px`` (rows, cols) before the sensor's first row and column and
-    ``after_px`` (default: the same) after its last; the albedo is smoothed to the ground
-    sample distance first (no aliasing). Pixel (r, c) of the sensor is element
-    (r + margin rows, c + margin cols)."""
-    from scipy.ndimage import gaussian_filter, map_coordinates
-
+def albedo_texels(m: Models, margin_px: int | np.ndarray,
+                  after_px: int | np.ndarray | None = None, texel_m: float | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, float]:
+    """Where every tracker pixel at t = 0 (with :func:`base_image`'s margins) falls on the
+    scene's albedo (through the camera model and the DEM): its texel coordinates (row, col)
+    (texel centres at integers; ``texel_m``: the albedo's texel, default the terrain's),
+    and the Gaussian's sigma (texels) that smooths the albedo to the ground sample
+    distance (0: none)."""
     cam, fp, terrain = m.camera, m.camera.focal_plane, m.terrain
     mr, mc = (int(v) for v in np.broadcast_to(margin_px, (2,)))
     ar, ac = (int(v) for v in np.broadcast_to(margin_px if after_px is None else after_px,
@@ -342,17 +341,59 @@ def base_image(m: Models, margin_px: int | np.ndarray,
     gr, gc = np.mgrid[-mr:fp.rows + ar, -mc:fp.cols + ac]
     pts = cam.ground_points(np.stack([gr, gc], axis=-1).astype(np.float64),
                             float(m.frame_mid_s[0]), terrain.height_at)
-    alb = terrain.albedo
     gsd = float(np.median(np.linalg.norm(np.diff(pts[:, :, :2], axis=1), axis=-1)))
-    texel = terrain.texel_m
+    texel = terrain.texel_m if texel_m is None else texel_m
     sig = max(0.0, 0.5 * gsd / texel - 0.3)
-    if sig > 0:
-        alb = gaussian_filter(alb, sig, mode="nearest")
     # albedo rows run north to south (texel centres at (k + 0.5) / N, row 0 = north edge)
     half = 0.5 * np.array(terrain.size_m)
     col = (pts[..., 0] + half[0]) / texel - 0.5
     row = (half[1] - pts[..., 1]) / texel - 0.5
-    return map_coordinates(alb, [row, col], order=1, mode="nearest")
+    return row, col, sig
+
+
+def albedo_span(row: np.ndarray, col: np.ndarray, sig: float, shape: tuple[int, int]
+                ) -> tuple[tuple[int, int], tuple[int, int]]:
+    """The texels (rows [r0, r1), cols [c0, c1)) of an albedo of ``shape`` that
+    :func:`base_image` reads at the coordinates ``row``, ``col`` (:func:`albedo_texels`):
+    their bilinear neighbours and the smoothing Gaussian's reach (``sig`` texels, scipy's
+    4 sigma), clipped to the tile."""
+    pad = int(4.0 * sig + 0.5) if sig > 0 else 0
+    out = []
+    for x, n in ((row, shape[0]), (col, shape[1])):
+        lo = int(np.floor(np.min(x))) - pad
+        hi = int(np.floor(np.max(x))) + 2 + pad
+        out.append((max(0, lo), min(n, max(1, hi))))
+    return out[0], out[1]
+
+
+def base_image(m: Models, margin_px: int | np.ndarray,
+               after_px: int | np.ndarray | None = None,
+               window: tuple[np.ndarray, float, tuple[int, int]] | None = None) -> np.ndarray:
+    """The scene's albedo at every tracker pixel at t = 0 (through the camera model and the
+    DEM), with ``margin_px`` (rows, cols) before the sensor's first row and column and
+    ``after_px`` (default: the same) after its last; the albedo is smoothed to the ground
+    sample distance first (no aliasing). Pixel (r, c) of the sensor is element
+    (r + margin rows, c + margin cols). ``window``: (albedo, texel_m, (row0, col0)), the
+    part of the tile's albedo from texel (row0, col0) that covers :func:`albedo_span`
+    (e.g. :meth:`scene.terrain.ProceduralDraws.albedo_window`), read instead of
+    ``m.terrain.albedo``: the same image, bit for bit."""
+    from scipy.ndimage import gaussian_filter, map_coordinates
+
+    row, col, sig = albedo_texels(m, margin_px, after_px,
+                                  None if window is None else window[1])
+    if window is None:
+        alb, (r0, c0) = m.terrain.albedo, (0, 0)
+    else:
+        alb, _, (r0, c0) = window
+        n = np.rint(np.array(m.terrain.size_m[::-1]) / window[1]).astype(int)
+        (a, b), (c, d) = albedo_span(row, col, sig, (int(n[0]), int(n[1])))
+        if a < r0 or c < c0 or b > r0 + alb.shape[0] or d > c0 + alb.shape[1]:
+            raise ValueError(f"base_image: the albedo window rows [{r0}, "
+                             f"{r0 + alb.shape[0]}), cols [{c0}, {c0 + alb.shape[1]}) does "
+                             f"not cover the texels read, rows [{a}, {b}), cols [{c}, {d})")
+    if sig > 0:
+        alb = gaussian_filter(alb, sig, mode="nearest")
+    return map_coordinates(alb, [row - r0, col - c0], order=1, mode="nearest")
 
 
 def predicted_sigma_px(m: Models, fill: bool = True,

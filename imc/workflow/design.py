@@ -46,6 +46,7 @@ from imc.workflow.predict import (
     LoopJobs,
     NiirsInputs,
     actuator_block,
+    bound_frame0,
     chain_break_probability,
     chain_overlap,
     controller_block,
@@ -311,9 +312,8 @@ def base_crlb_px(design: Design) -> float:
     the fraction of blocks the correlator keeps there (a refused block does not average)."""
     if design.config.tracker_crlb_px is not None:
         return design.config.tracker_crlb_px
-    from imc.wiring.build import build_models
-
-    crlb, kept = tracker_bound(build_models(design.base), design.config.verify.fidelity)
+    fid = design.config.verify.fidelity
+    crlb, kept = tracker_bound(*bound_frame0(design.base, fid), fidelity=fid)
     return float(np.mean(crlb) / np.sqrt(kept))
 
 
@@ -398,13 +398,15 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
         from imc.wiring.build import build_models
 
         t_base = time.perf_counter()
-        if crlb is None:  # each block size's own bound on the base scene (its models built once)
-            m = build_models(base)
+        if crlb is None:  # each block size's own bound on the base scene's frame 0 (built
+            # once: a procedural tile only under the footprint)
+            m, rad = bound_frame0(base, cfg.verify.fidelity)
             eff = efficiency.at(tracker_snr(m), b)
-            table = tracker_bounds(m, free.block_px, cfg.verify.fidelity)
+            table = tracker_bounds(m, free.block_px, cfg.verify.fidelity, radiance=rad)
             per_block = np.array([table[int(x)][0] for x in b])
             p_kept = np.array([table[int(x)][1] for x in b])
-            crlb0, kept0 = tracker_bound(m, cfg.verify.fidelity)  # the record's base bound
+            # the record's base bound
+            crlb0, kept0 = tracker_bound(m, cfg.verify.fidelity, radiance=rad)
             base_crlb = float(np.mean(crlb0) / np.sqrt(kept0))
         else:  # a given bound at the base's block size, as one over the block's side
             m = build_models(base, light=True)

@@ -1021,17 +1021,47 @@ def tracker_snr(m) -> float:
     return float(m.sensor.snr(exposure_s=m.exposure_s))
 
 
-def tracker_bound(m, fidelity: str = "texture") -> tuple[np.ndarray, float]:
+def bound_frame0(sc: Scenario, fidelity: str = "texture"):
+    """The base's built run and frame 0's radiance as the tracker's bound reads it
+    (:func:`tracker_bound`, :func:`tracker_bounds`): at 'rendered' fidelity Mitsuba's frame
+    0 on the whole tile; else the albedo under frame 0's footprint. A procedural tile is
+    then not built whole: its DEM and the albedo's window under the footprint only
+    (:func:`imc.wiring.build.procedural_draws`; the same image bit for bit: the
+    smallsat's 12.2 km tile in ~1/5 of its CPU time); ``Models.terrain`` is then its
+    geometry with a stand-in albedo (geometry, coverage and flow as on the whole tile).
+
+    Returns
+    -------
+    (Models, (rows, cols) radiance of frame 0, the albedo's units).
+    """
+    from imc.wiring.build import build_models, procedural_draws
+    from imc.wiring.rendered_plant import albedo_span, albedo_texels, base_image
+
+    draws = procedural_draws(sc) if fidelity != "rendered" else None
+    if draws is None:
+        m = build_models(sc)
+        return m, _rendered_frame0(m) if fidelity == "rendered" else base_image(m, 0)
+    m = build_models(sc, terrain=draws.geometry())
+    row, col, sig = albedo_texels(m, 0, texel_m=draws.texel_m)
+    rows, cols = albedo_span(row, col, sig, (draws.n, draws.n))
+    window = (draws.albedo_window(rows, cols), draws.texel_m, (rows[0], cols[0]))
+    return m, base_image(m, 0, window=window)
+
+
+def tracker_bound(m, fidelity: str = "texture", radiance: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, float]:
     """The tracker's bound on a built run's base scene
     (:func:`imc.wiring.rendered_plant.predicted_sigma_px`): the per-block bound (2,) px
     that, over the kept blocks, gives their inverse-variance fit (the motion-field fit's
     weights): ``fit * sqrt(n_kept)``; and the fraction of blocks the correlator keeps (a
     textureless block is refused in a run, so it does not average). ``fidelity``
     'rendered': on frame 0 as Mitsuba renders it (the relief's shading is texture the flat
-    albedo lacks: the quickstart's bound is 0.65x the albedo's); else on the albedo."""
+    albedo lacks: the quickstart's bound is 0.65x the albedo's); else on the albedo.
+    ``radiance``: frame 0 as :func:`bound_frame0` gives it (default: made from ``m``)."""
     from imc.wiring.rendered_plant import predicted_sigma_px
 
-    rad = _rendered_frame0(m) if fidelity == "rendered" else None
+    rad = radiance if radiance is not None else (
+        _rendered_frame0(m) if fidelity == "rendered" else None)
     crlb = predicted_sigma_px(m, fill=False, radiance=rad)
     ok = np.isfinite(crlb).all(axis=1)
     if not ok.any():
@@ -1042,19 +1072,21 @@ def tracker_bound(m, fidelity: str = "texture") -> tuple[np.ndarray, float]:
     return fit * np.sqrt(ok.sum()), float(ok.mean())
 
 
-def tracker_bounds(m, sizes, fidelity: str = "texture", n_blocks: int | None = None
-                   ) -> dict[int, tuple[float, float]]:
+def tracker_bounds(m, sizes, fidelity: str = "texture", n_blocks: int | None = None,
+                   radiance: np.ndarray | None = None) -> dict[int, tuple[float, float]]:
     """The tracker's per-block bound (px, mean of the axes) at each block size of ``sizes``
     on the base scene, as :func:`tracker_bound` gives it over the kept blocks, over the
     square root of the kept fraction (a refused block does not average), measured on a grid
     of ``n_blocks`` blocks of that size (None: the sensor tiled by the block, at least 9;
     inf where the correlator keeps none, or the block exceeds the sensor); and the
     probability that a block is valid (:func:`block_valid_probability` of the grid's
-    blocks as the real correlator judged them)."""
+    blocks as the real correlator judged them). ``radiance``: frame 0 as
+    :func:`bound_frame0` gives it (default: made from ``m``, once)."""
     from correlator.tracker import block_grid
-    from imc.wiring.rendered_plant import predicted_sigma_px
+    from imc.wiring.rendered_plant import base_image, predicted_sigma_px
 
-    rad = _rendered_frame0(m) if fidelity == "rendered" else None
+    rad = radiance if radiance is not None else (
+        _rendered_frame0(m) if fidelity == "rendered" else base_image(m, 0))
     fp = m.camera.focal_plane
     out = {}
     for b in sorted({int(x) for x in sizes}):

@@ -47,10 +47,19 @@ def _scenario(**product) -> dict:
     return d
 
 
-def _run(d: dict):
-    """(models, plant, loop result, links) of one scenario."""
+def _run(d: dict, floor: bool = False):
+    """(models, plant, loop result, links) of one scenario; ``floor``: an analytic plant
+    whose links also carry the rendered tracker's Monte Carlo floor
+    (:func:`imc.wiring.rendered_plant.render_floor_px`, measured on this scene)."""
     m = build_models(parse_scenario(d))
-    plant = build_plant(m)
+    if floor and m.scenario.plant.fidelity == "analytic":
+        from imc.wiring.rendered_plant import analytic_plant, predicted_sigma_px, render_floor_px
+
+        f0 = render_floor_px(m)
+        print(json.dumps({"render_floor_px": f0.tolist()}), flush=True)
+        plant = analytic_plant(m, predicted_sigma_px(m), floor_px=f0)
+    else:
+        plant = build_plant(m)
     sigma = float(np.mean(plant.sigma_px)) if hasattr(plant, "sigma_px") else None
     parts = build_loop(m, None, sigma)
     res = simulate(plant, parts.estimator, parts.controller, parts.actuator, parts.transport,
@@ -255,6 +264,8 @@ def main() -> None:
                     "with the links' shared noise and weighed as independent")
     ap.add_argument("--links", type=Path, default=None, help="with --run: the links measured "
                     "on its frames, read from this .npz (written there by the first call)")
+    ap.add_argument("--render-floor", action="store_true", help="the analytic plant's "
+                    "links with the rendered tracker's Monte Carlo floor measured on the scene")
     ap.add_argument("--timing", action="store_true", help="only the network solve's time "
                     "with and without the links' shared noise")
     a = ap.parse_args()
@@ -282,7 +293,7 @@ def main() -> None:
         d = _scenario()
         d["plant"] = {"fidelity": fid}
         m, plant, res, links = (_from_run(d, a.run, a.links) if fid == "rendered" and a.run
-                                else _run(d))
+                                else _run(d, a.render_floor))
         r = {"loop_s": time.perf_counter() - t0,
              "efficiency": links.efficiency.tolist(), "links": int(links.valid.sum())}
         if fid == "rendered":
@@ -307,7 +318,8 @@ def main() -> None:
         out[fid] = r
         print(json.dumps({fid: r}, indent=1), flush=True)
     Path(a.out).mkdir(parents=True, exist_ok=True)
-    write_json(Path(a.out) / f"restitution{'_' + a.fidelity if a.fidelity else ''}.json", out)
+    tag = ("_" + a.fidelity if a.fidelity else "") + ("_floor" if a.render_floor else "")
+    write_json(Path(a.out) / f"restitution{tag}.json", out)
 
 
 if __name__ == "__main__":

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 from scipy.ndimage import fourier_shift, map_coordinates, spline_filter
 
+from correlator.core import measure_shift
 from correlator.tracker import BlockTracker, extract_blocks
 from imc.io import write_json
 from imc.scenario import parse_scenario
@@ -180,6 +181,49 @@ def floor_summary(rows: list[dict], keys: tuple[str, ...], noisy: str = "noisy",
     return out
 
 
+def _in_dn(noisy: np.ndarray, clean: np.ndarray) -> tuple[np.ndarray, float]:
+    """The clean frames on the noisy ones' DN scale (a least-squares gain and offset: the
+    re-render's clean frames are the optics' output times the exposure gain, before the
+    sensor's conversion) and the sensor noise's mean variance, DN^2."""
+    x, y = clean.ravel()[::97].astype(np.float64), noisy.ravel()[::97].astype(np.float64)
+    g, o = np.polyfit(x, y, 1)
+    dn = g * clean.astype(np.float64) + o
+    return dn, float(np.var(noisy.astype(np.float64) - dn))
+
+
+def noise_kind(noisy: np.ndarray, clean: np.ndarray, block_px: int = 64, step: int = 8,
+               seed: int = 7) -> dict:
+    """The correlator's error against its bound on the rendered content alone: every
+    ``step``-th clean frame cut into a grid of blocks, each block against itself with two
+    independent noise draws (true shift 0: no Monte Carlo floor, no interpolation), the
+    sensor's signal-dependent noise (its variance's linear fit on the clean level, from
+    noisy - clean) and white noise of the same mean power: RMS error / RMS bound per axis."""
+    dn, var = _in_dn(noisy[::step], clean[::step])
+    r = noisy[::step].astype(np.float64) - dn
+    edges = np.quantile(dn, np.linspace(0, 1, 11))
+    idx = np.digitize(dn, edges[1:-1])
+    lvl = np.array([dn[idx == i].mean() for i in range(10)])
+    slope, icpt = np.polyfit(lvl, [r[idx == i].var() for i in range(10)], 1)
+    b = block_px
+    n = dn.shape[-1] // b
+    blocks = dn[:, :n * b, :n * b].reshape(len(dn), n, b, n, b).transpose(0, 1, 3, 2, 4) \
+        .reshape(-1, b, b)
+    rng = np.random.default_rng(seed)
+    out = {"noise_var_dn2": [float(icpt), float(slope)], "blocks": len(blocks)}
+    for name, sd in (("physical", np.sqrt(np.maximum(icpt + slope * blocks, 1e-6))),
+                     ("white", np.full(blocks.shape, np.sqrt(var)))):
+        x = np.rint(blocks + sd * rng.standard_normal(blocks.shape))
+        y = np.rint(blocks + sd * rng.standard_normal(blocks.shape))
+        res = measure_shift(x, y)
+        ok = res.valid
+        out[name] = {"valid": float(ok.mean()),
+                     "rms_px": np.sqrt(np.mean(res.shift[ok] ** 2, axis=0)).tolist(),
+                     "crlb_px": np.sqrt(np.mean(res.crlb[ok] ** 2, axis=0)).tolist()}
+        out[name]["over_crlb"] = (np.array(out[name]["rms_px"])
+                                  / np.array(out[name]["crlb_px"])).tolist()
+    return out
+
+
 def rerender(m, seed: int) -> dict[str, np.ndarray]:
     """The run's tracker frames rendered again from the true pose (no stage) with the render
     and sensor noise of scenario seed ``seed`` (the scene and the motion unchanged):
@@ -271,8 +315,16 @@ def main() -> None:
                     "against the bound, as the ground measures them: the noiseless floor")
     ap.add_argument("--white", action="store_true", help="with --floor: also the clean "
                     "frames plus white Gaussian noise of the sensor noise's mean power")
+    ap.add_argument("--noise-kind", action="store_true", help="only the correlator's error "
+                    "over its bound on --frames' clean content (keys noisy, clean) with the "
+                    "sensor's noise and white noise, true shift 0 (no model is built)")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "out"))
     a = ap.parse_args()
+    if a.noise_kind:
+        with np.load(a.frames) as f:
+            out = noise_kind(f["noisy"], f["clean"])
+        print(json.dumps(out, indent=1), flush=True)
+        return
     d = _scenario()
     d["plant"] = {"fidelity": "rendered"}
     m = build_models(parse_scenario(d))
@@ -287,8 +339,8 @@ def main() -> None:
     if a.floor:
         if a.white and "clean" in z:  # the same radiance with white noise of the same power
             rng = streams.rng(m.scenario.seed, "sensor", 10 ** 6)  # no frame has it
-            var = float(np.mean((z["noisy"].astype(np.float64) - z["clean"]) ** 2))
-            z["white"] = np.rint(z["clean"] + rng.normal(0.0, np.sqrt(var), z["clean"].shape))
+            dn, var = _in_dn(z["noisy"], z["clean"])
+            z["white"] = np.rint(dn + rng.normal(0.0, np.sqrt(var), dn.shape))
             keys = (*keys, "white")
         t0 = time.perf_counter()
         rows = floor_errors(m, z)

@@ -264,6 +264,8 @@ def main() -> None:
                     "with the links' shared noise and weighed as independent")
     ap.add_argument("--links", type=Path, default=None, help="with --run: the links measured "
                     "on its frames, read from this .npz (written there by the first call)")
+    ap.add_argument("--lengths", action="store_true", help="only the geometry at the three "
+                    "strip lengths")
     ap.add_argument("--render-floor", action="store_true", help="the analytic plant's "
                     "links with the rendered tracker's Monte Carlo floor measured on the scene")
     ap.add_argument("--timing", action="store_true", help="only the network solve's time "
@@ -298,6 +300,11 @@ def main() -> None:
              "efficiency": links.efficiency.tolist(), "links": int(links.valid.sum())}
         if fid == "rendered":
             r["budget"] = budget(m, res, plant)
+        if a.lengths:
+            r["lengths"] = [_geometry(m, links, n) for n in LENGTHS]
+            out[fid] = r
+            print(json.dumps({fid: r}, indent=1), flush=True)
+            continue
         r["baselines"] = [_geometry(m, links, 12800, restitution={"baselines": k,
                                                                   "smoother": sm})
                           for k, sm in ((1, False), (1, True), (2, True), (3, True),

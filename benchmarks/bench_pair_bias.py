@@ -224,6 +224,43 @@ def noise_kind(noisy: np.ndarray, clean: np.ndarray, block_px: int = 64, step: i
     return out
 
 
+def render_phase(m, frames=(5, 60, 120, 180, 240, 300), spps=(4, 32)) -> dict:
+    """Aliasing against the renderer's Monte Carlo noise: each frame's pose rendered (no
+    sensor noise, the optics applied) with sampler seed 101, then with seed 202 at the same
+    pose, and with the stage (the principal point) moved by exactly 0.5 and 1.0 px along
+    track and 0.5 px across, at ``spps`` samples a pixel (Mitsuba's stratified sampler
+    rounds 32 to 36); the run's 4 blocks correlated against the first render: RMS error
+    about its mean (row, col) px over frames and blocks. Aliasing grows at the half pixel
+    and vanishes at the whole one; the sampling noise does not care."""
+    from imc.wiring import rendered_plant
+    from scene.pinhole import ray_keyframes
+
+    plant = rendered_plant.RenderedPlant(m)
+    r, fp, b = plant.renderer, m.camera.focal_plane, m.scenario.correlator.block_px
+    cases = {"seed": ((0.0, 0.0), 202), "row_0.5": ((0.5, 0.0), 202),
+             "row_1.0": ((1.0, 0.0), 202), "col_0.5": ((0.0, 0.5), 202)}
+    err = {f"{c}_{spp}": [] for c in cases for spp in spps}
+    for k in frames:
+        t = float(m.frame_t_s[k]) + np.linspace(0.0, m.exposure_s, rendered_plant.KEYFRAMES)
+
+        def img(off, seed, spp, t=t):
+            r.spp = spp
+            kf = ray_keyframes(m.camera.pose(t), fp, np.tile(off, (len(t), 1)), r.z_start_m)
+            return m.optics.apply(r.render(kf, seed))
+
+        for spp in spps:
+            ref = img((0.0, 0.0), 101, spp)
+            tr = BlockTracker(ref, m.corners, b, m.correlator)
+            for c, (off, seed) in cases.items():
+                res = tr.update(img(off, seed, spp), np.zeros((len(m.corners), 2)))
+                err[f"{c}_{spp}"].append(np.where(res.valid[:, None], res.shift, np.nan))
+    out = {}
+    for key, e in err.items():
+        e = np.concatenate(e)
+        out[key] = np.nanstd(e, axis=0).tolist()
+    return out
+
+
 def rerender(m, seed: int) -> dict[str, np.ndarray]:
     """The run's tracker frames rendered again from the true pose (no stage) with the render
     and sensor noise of scenario seed ``seed`` (the scene and the motion unchanged):
@@ -315,6 +352,8 @@ def main() -> None:
                     "against the bound, as the ground measures them: the noiseless floor")
     ap.add_argument("--white", action="store_true", help="with --floor: also the clean "
                     "frames plus white Gaussian noise of the sensor noise's mean power")
+    ap.add_argument("--phase", action="store_true", help="only the renders of one pose "
+                    "with other sampler seeds and sub-pixel steps, at 4 and 32 spp")
     ap.add_argument("--noise-kind", action="store_true", help="only the correlator's error "
                     "over its bound on --frames' clean content (keys noisy, clean) with the "
                     "sensor's noise and white noise, true shift 0 (no model is built)")
@@ -336,6 +375,10 @@ def main() -> None:
             keys = a.keys.split(",")
             z = {k: f[k] for k in keys}
     out = {}
+    if a.phase:
+        out = render_phase(m)
+        print(json.dumps(out, indent=1), flush=True)
+        return
     if a.floor:
         if a.white and "clean" in z:  # the same radiance with white noise of the same power
             rng = streams.rng(m.scenario.seed, "sensor", 10 ** 6)  # no frame has it

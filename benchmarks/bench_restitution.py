@@ -212,6 +212,39 @@ def correlator_efficiency(pairs: int = 150, seed: int = 32) -> dict:
     return out
 
 
+def scene_efficiency(draws: int = 24) -> dict:
+    """The correlator's error against its bound on no_stage.yaml's own texture as the
+    analytic plant sees it (frame 0's flat-shaded albedo through the optics,
+    :func:`imc.wiring.rendered_plant.base_image`, as ``predicted_sigma_px`` exposes it):
+    ``draws`` pairs of independent sensor-noise draws (the 'texture' stream's members past
+    the two the bound uses), 16 blocks of 64 px, true shift 0: RMS error / RMS bound."""
+    from correlator.tracker import BlockTracker, extract_blocks
+    from imc.wiring import streams
+    from imc.wiring.rendered_plant import base_image, expose_frame
+
+    d = _scenario()
+    d["plant"] = {"fidelity": "analytic"}
+    m = build_models(parse_scenario(d))
+    rad = base_image(m, 0)
+    gain = m.sensor.gain_for(m.optics.apply(rad))
+    fp, bp = m.camera.focal_plane, m.scenario.correlator.block_px
+    corners = np.stack(np.meshgrid(np.arange(0, fp.rows - bp + 1, bp),
+                                   np.arange(0, fp.cols - bp + 1, bp), indexing="ij"),
+                       axis=-1).reshape(-1, 2)
+    err, crlb = [], []
+    for i in range(draws):
+        a = expose_frame(m, rad, gain, streams.rng(m.scenario.seed, "texture", 2 + 2 * i))
+        b = expose_frame(m, rad, gain, streams.rng(m.scenario.seed, "texture", 3 + 2 * i))
+        res = BlockTracker(a, corners, bp, m.correlator).correlator.measure(
+            extract_blocks(b, corners, bp))
+        err.append(np.where(res.valid[:, None], res.shift, np.nan))
+        crlb.append(np.where(res.valid[:, None], res.crlb, np.nan))
+    e, c = np.concatenate(err), np.concatenate(crlb)
+    rms, bound = np.sqrt(np.nanmean(e ** 2, axis=0)), np.sqrt(np.nanmean(c ** 2, axis=0))
+    return {"blocks": int(np.isfinite(e[:, 0]).sum()), "rms_px": rms.tolist(),
+            "crlb_px": bound.tolist(), "over_crlb": (rms / bound).tolist()}
+
+
 def solve_timing(frames: tuple[int, ...] = (331, 2000), k_max: int = 4) -> dict:
     """Seconds of one network solve (estimate and covariance) of a synthetic chained tracker
     like no_stage.yaml's (4 blocks of 64 px on a 256-px sensor, the content moving 41.5 px a
@@ -264,6 +297,8 @@ def main() -> None:
                     "with the links' shared noise and weighed as independent")
     ap.add_argument("--links", type=Path, default=None, help="with --run: the links measured "
                     "on its frames, read from this .npz (written there by the first call)")
+    ap.add_argument("--scene-efficiency", action="store_true", help="only the correlator's "
+                    "error over its bound on the analytic plant's view of the scene")
     ap.add_argument("--lengths", action="store_true", help="only the geometry at the three "
                     "strip lengths")
     ap.add_argument("--render-floor", action="store_true", help="the analytic plant's "
@@ -281,6 +316,10 @@ def main() -> None:
         print(json.dumps(out, indent=1, default=str), flush=True)
         Path(a.out).mkdir(parents=True, exist_ok=True)
         write_json(Path(a.out) / "restitution_orthoimage.json", out)
+        return
+    if a.scene_efficiency:
+        out["scene_efficiency"] = scene_efficiency()
+        print(json.dumps(out, indent=1), flush=True)
         return
     if a.efficiency:
         out["efficiency"] = correlator_efficiency()

@@ -47,17 +47,21 @@ def _scenario(**product) -> dict:
     return d
 
 
-def _run(d: dict, floor: bool = False):
+def _run(d: dict, floor: bool = False, efficiency: bool = False):
     """(models, plant, loop result, links) of one scenario; ``floor``: an analytic plant
     whose links also carry the rendered tracker's Monte Carlo floor
-    (:func:`imc.wiring.rendered_plant.render_floor_px`, measured on this scene)."""
+    (:func:`imc.wiring.rendered_plant.render_floor_px`, measured on this scene), and with
+    ``efficiency`` its bound's part drawn at the correlator's efficiency on the scene
+    (:func:`scene_efficiency`)."""
     m = build_models(parse_scenario(d))
     if floor and m.scenario.plant.fidelity == "analytic":
         from imc.wiring.rendered_plant import analytic_plant, predicted_sigma_px, render_floor_px
 
         f0 = render_floor_px(m)
-        print(json.dumps({"render_floor_px": f0.tolist()}), flush=True)
-        plant = analytic_plant(m, predicted_sigma_px(m), floor_px=f0)
+        eff = np.array(scene_efficiency(m)["over_crlb"]) if efficiency else np.ones(2)
+        print(json.dumps({"render_floor_px": f0.tolist(), "efficiency": eff.tolist()}),
+              flush=True)
+        plant = analytic_plant(m, predicted_sigma_px(m), floor_px=f0, efficiency=eff)
     else:
         plant = build_plant(m)
     sigma = float(np.mean(plant.sigma_px)) if hasattr(plant, "sigma_px") else None
@@ -212,7 +216,7 @@ def correlator_efficiency(pairs: int = 150, seed: int = 32) -> dict:
     return out
 
 
-def scene_efficiency(draws: int = 24) -> dict:
+def scene_efficiency(m=None, draws: int = 24) -> dict:
     """The correlator's error against its bound on no_stage.yaml's own texture as the
     analytic plant sees it (frame 0's flat-shaded albedo through the optics,
     :func:`imc.wiring.rendered_plant.base_image`, as ``predicted_sigma_px`` exposes it):
@@ -222,9 +226,10 @@ def scene_efficiency(draws: int = 24) -> dict:
     from imc.wiring import streams
     from imc.wiring.rendered_plant import base_image, expose_frame
 
-    d = _scenario()
-    d["plant"] = {"fidelity": "analytic"}
-    m = build_models(parse_scenario(d))
+    if m is None:
+        d = _scenario()
+        d["plant"] = {"fidelity": "analytic"}
+        m = build_models(parse_scenario(d))
     rad = base_image(m, 0)
     gain = m.sensor.gain_for(m.optics.apply(rad))
     fp, bp = m.camera.focal_plane, m.scenario.correlator.block_px
@@ -299,6 +304,8 @@ def main() -> None:
                     "on its frames, read from this .npz (written there by the first call)")
     ap.add_argument("--scene-efficiency", action="store_true", help="only the correlator's "
                     "error over its bound on the analytic plant's view of the scene")
+    ap.add_argument("--scene-eff", action="store_true", help="with --render-floor: the "
+                    "bound's part drawn at the correlator's efficiency on the scene")
     ap.add_argument("--lengths", action="store_true", help="only the geometry at the three "
                     "strip lengths")
     ap.add_argument("--render-floor", action="store_true", help="the analytic plant's "
@@ -334,7 +341,7 @@ def main() -> None:
         d = _scenario()
         d["plant"] = {"fidelity": fid}
         m, plant, res, links = (_from_run(d, a.run, a.links) if fid == "rendered" and a.run
-                                else _run(d, a.render_floor))
+                                else _run(d, a.render_floor, a.scene_eff))
         r = {"loop_s": time.perf_counter() - t0,
              "efficiency": links.efficiency.tolist(), "links": int(links.valid.sum())}
         if fid == "rendered":
@@ -364,7 +371,8 @@ def main() -> None:
         out[fid] = r
         print(json.dumps({fid: r}, indent=1), flush=True)
     Path(a.out).mkdir(parents=True, exist_ok=True)
-    tag = ("_" + a.fidelity if a.fidelity else "") + ("_floor" if a.render_floor else "")
+    tag = ("_" + a.fidelity if a.fidelity else "") + ("_floor" if a.render_floor else "") \
+        + ("_eff" if a.scene_eff else "")
     write_json(Path(a.out) / f"restitution{tag}.json", out)
 
 

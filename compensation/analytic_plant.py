@@ -66,7 +66,10 @@ class AnalyticPlant:
         chain's noise is then the frames' noise over those regions (below); None: the
         shared-fraction model and every block. floor_px : (B, 2) or scalar, px: the
         per-link error the reported sigma_px leaves out (module docstring), drawn with the
-        sensor's noise (scaled by noise_scale too); 0: none.
+        sensor's noise (scaled by noise_scale too); 0: none. efficiency : (2,) or scalar,
+        the correlator's actual error over its reported bound on the scene's texture
+        (measured, e.g. 1.12 on no_stage.yaml's): the drawn noise is efficiency x sigma_px,
+        the reported one sigma_px; 1: the bound.
     """
 
     def __init__(self, motion_px: MotionFn, centers_px: np.ndarray, sigma_px,
@@ -79,7 +82,7 @@ class AnalyticPlant:
                  | None = None,
                  pair_regions: Callable[[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]]
                  | None = None, frame_shape: tuple[int, int] | None = None,
-                 block_px: int | None = None, floor_px=0.0):
+                 block_px: int | None = None, floor_px=0.0, efficiency=1.0):
         if not 0.0 <= shared_fraction <= 0.5:
             raise ValueError(f"shared_fraction must be in [0, 0.5], got {shared_fraction}")
         self.chain = bool(chain)
@@ -106,7 +109,11 @@ class AnalyticPlant:
         self.seed = tuple(seed)
         self.noise_scale = float(noise_scale)
         #: the noise each link carries (B, 2) px: the bound and the unreported floor
-        self.drawn_px = np.hypot(self.sigma_px, self.floor_px) * self.noise_scale
+        self.efficiency = np.broadcast_to(np.asarray(efficiency, dtype=np.float64), (2,)).copy()
+        if np.any(self.efficiency <= 0) or not np.all(np.isfinite(self.efficiency)):
+            raise ValueError("efficiency must be finite and > 0")
+        self.drawn_px = np.hypot(self.sigma_px * self.efficiency, self.floor_px) \
+            * self.noise_scale
         frac = (np.arange(samples) + 0.5) / samples
         times = (self.frame_t_s[:, None] + frac[None, :] * self.exposure_s).ravel()
         m = np.asarray(motion_px(times), dtype=np.float64)

@@ -189,11 +189,11 @@ def test_the_analytic_floor_is_drawn_unreported_and_the_record_consistency_finds
         ref, used = pair_corners(corners, st, 64, np.array([192, 192]))
         return ref, ref + np.rint(st).astype(int), used
 
-    def plant(floor):
+    def plant(floor, eff=1.0):
         return AnalyticPlant(lambda tt: np.zeros((len(tt), 4, 2)), corners + 31.5, 0.011,
                              np.arange(1001) / 200.0, 2e-4, seed=(5,), chain=True,
                              pair_regions=regions, frame_shape=(256, 256), block_px=64,
-                             floor_px=floor)
+                             floor_px=floor, efficiency=eff)
 
     floor = np.array([0.0064, 0.0056])
     a, b, d, sig, valid = plant(floor).pair_links(4)
@@ -209,5 +209,12 @@ def test_the_analytic_floor_is_drawn_unreported_and_the_record_consistency_finds
     _, _, _, chi0 = combine_blocks(d0, sig, valid)
     np.testing.assert_allclose(np.sqrt(chi0[ok].sum(axis=0) / (nblk[ok] - 1).sum()), 1.0,
                                rtol=0.05)
+    # the correlator's efficiency on the texture scales the bound's part, not the report
+    _, _, d2, sig2, _ = plant(floor, 1.3).pair_links(4)
+    np.testing.assert_array_equal(sig2[valid], 0.011)
+    np.testing.assert_allclose(np.std(d2[valid], axis=0), np.hypot(1.3 * 0.011, floor),
+                               rtol=0.05)
     with pytest.raises(ValueError, match="floor_px"):
         plant(-0.01)
+    with pytest.raises(ValueError, match="efficiency"):
+        plant(0.0, 0.0)

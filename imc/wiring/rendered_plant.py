@@ -410,9 +410,10 @@ def render_floor_px(m: Models, seeds: int = 3, frame: int = 0) -> np.ndarray:
     return np.sqrt(np.nanmean(np.concatenate(errs) ** 2, axis=0))
 
 
-def analytic_plant(m: Models, sigma_px, floor_px=0.0) -> AnalyticPlant:
+def analytic_plant(m: Models, sigma_px, floor_px=0.0, efficiency=1.0) -> AnalyticPlant:
     """Measurements = the camera model's true block shifts + noise of ``sigma_px`` (and of
-    ``floor_px``, px, that the reported sigma leaves out: e.g. :func:`render_floor_px`)."""
+    ``floor_px``, px, that the reported sigma leaves out: e.g. :func:`render_floor_px`; the
+    bound's part drawn at ``efficiency`` times it)."""
     cam = m.camera
     t0 = float(m.frame_mid_s[0])
     centers = BlockTracker.centers_from(m.corners, m.scenario.correlator.block_px)
@@ -452,7 +453,8 @@ def analytic_plant(m: Models, sigma_px, floor_px=0.0) -> AnalyticPlant:
                          field_nominal_px=field_nominal, chain=m.chain,
                          predict_between=between if m.chain else None,
                          pair_regions=pair_regions if m.chain else None,
-                         frame_shape=(fp.rows, fp.cols), block_px=bp, floor_px=floor_px)
+                         frame_shape=(fp.rows, fp.cols), block_px=bp, floor_px=floor_px,
+                         efficiency=efficiency)
 
 
 def build_plant(m: Models):

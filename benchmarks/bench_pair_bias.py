@@ -29,9 +29,11 @@ from pathlib import Path
 import numpy as np
 from scipy.ndimage import fourier_shift, map_coordinates, spline_filter
 
+from correlator.core import measure_shift
 from correlator.tracker import BlockTracker, extract_blocks
 from imc.io import write_json
 from imc.scenario import parse_scenario
+from imc.wiring import streams
 from imc.wiring.build import build_models, predicted_px
 from imc.wiring.links import pair_corners
 from imc.wiring.truth import exposure_times
@@ -96,6 +98,167 @@ def pair_errors(m, frames: np.ndarray) -> list[dict]:
                          **{n: np.where((v & used)[:, None], e, np.nan)
                             for n, (e, v) in err.items()}})
     return rows
+
+
+def floor_errors(m, sets: dict[str, np.ndarray], k_max: int = 4) -> list[dict]:
+    """Each pair's per-block error (B, 2) px against the camera model's truth on each set of
+    frames (e.g. ``noisy`` and ``clean``, the same radiance with and without the sensor's
+    noise), measured as the ground's links are (the pair cut by
+    :func:`imc.wiring.links.pair_corners`, the current block resampled at the predicted
+    motion, :meth:`correlator.tracker.BlockTracker.update` with ``flow``), with the bound
+    the correlator reports on each set and the pair's predicted step (B, 2) px (its
+    fractional part is the frames' sub-pixel sampling phase)."""
+    b = m.scenario.correlator.block_px
+    fp = m.camera.focal_plane
+    lim = np.array([fp.rows - b, fp.cols - b])
+    grid = BlockTracker.centers_from(m.corners, b)
+    s = m.scenario.metrics.samples_per_frame
+    z = np.zeros(2)
+    rows = []
+    for k in range(k_max, len(m.frame_t_s)):
+        for j in range(1, k_max + 1):
+            a = k - j
+            corners, used = pair_corners(m.corners, predicted_px(m, grid, a, k, z, z), b, lim)
+            centers = BlockTracker.centers_from(corners, b)
+            pred = predicted_px(m, centers, a, k, z, z)
+            times = np.concatenate([exposure_times(m, a, s), exposure_times(m, k, s)])
+            g = m.camera.ground_points(centers, float(m.frame_mid_s[a]), m.terrain.height_at)
+            mo = m.camera.image_motion_px(g, times, float(m.frame_mid_s[a]))
+            true = mo[s:].mean(0) - mo[:s].mean(0)
+            flow = np.broadcast_to(pred[:, None, None, :], (len(pred), b, b, 2))
+            row = {"j": j, "k": k, "pred": pred, "true": true}
+            for key, fr in sets.items():
+                tr = BlockTracker(fr[a].astype(np.float64), corners, b, m.correlator)
+                r = tr.update(fr[k].astype(np.float64), pred, None, flow=flow)
+                ok = (r.valid & used)[:, None]
+                row[key] = np.where(ok, r.shift - true, np.nan)
+                row[key + "_crlb"] = np.where(ok, r.crlb, np.nan)
+            rows.append(row)
+    return rows
+
+
+def floor_summary(rows: list[dict], keys: tuple[str, ...], noisy: str = "noisy",
+                  clean: str = "clean") -> dict:
+    """Per baseline: each set's block error RMS about the set's mean (row, col) px, the RMS
+    bound the correlator reports on the noisy frames, the noiseless floor f0 (the clean
+    set's RMS) and sqrt(crlb^2 + f0^2) / crlb against the measured noisy RMS / crlb; and the
+    clean error against the pair's sub-pixel phase (|frac(step)| in 5 bins per axis)."""
+    out = {}
+    for j in sorted({r["j"] for r in rows}):
+        rr = [r for r in rows if r["j"] == j]
+        step = np.stack([r["true"] for r in rr])
+        fig = {"pairs": len(rr)}
+        for key in keys:
+            e = np.stack([r[key] for r in rr])
+            fig[key + "_rms_px"] = np.sqrt(np.nanmean((e - np.nanmean(e, axis=(0, 1))) ** 2,
+                                                      axis=(0, 1))).tolist()
+            fig[key + "_mean_px"] = np.nanmean(e, axis=(0, 1)).tolist()
+        crlb = np.sqrt(np.nanmean(np.stack([r[noisy + "_crlb"] for r in rr]) ** 2,
+                                  axis=(0, 1)))
+        fig["crlb_rms_px"] = crlb.tolist()
+        if noisy in keys and clean in keys:
+            f0, tot = np.array(fig[clean + "_rms_px"]), np.array(fig[noisy + "_rms_px"])
+            fig["measured_over_crlb"] = (tot / crlb).tolist()
+            fig["sqrt_crlb2_f02_over_crlb"] = (np.sqrt(crlb ** 2 + f0 ** 2) / crlb).tolist()
+            for key in keys:  # the sensor noise's own part: the same radiance's error removed
+                if key != clean:
+                    part = np.stack([r[key] - r[clean] for r in rr])
+                    c = np.sqrt(np.nanmean(np.stack([r[key + "_crlb"] for r in rr]) ** 2,
+                                           axis=(0, 1)))
+                    fig[key + "_less_clean_over_crlb"] = (np.sqrt(np.nanmean(
+                        part ** 2, axis=(0, 1))) / c).tolist()
+            e = np.stack([r[clean] for r in rr])
+            frac = np.abs(step - np.rint(step))  # (n, B, 2) sub-pixel phase, 0..0.5
+            bins = np.linspace(0.0, 0.5, 6)
+            fig["clean_rms_by_phase_px"] = [[
+                float(np.sqrt(np.nanmean(e[..., i][(frac[..., i] >= lo) & (frac[..., i] < hi)]
+                                         ** 2)))
+                if np.any((frac[..., i] >= lo) & (frac[..., i] < hi)) else None
+                for lo, hi in zip(bins[:-1], bins[1:], strict=True)] for i in range(2)]
+            fig["phase_counts"] = [np.histogram(frac[..., i], bins)[0].tolist()
+                                   for i in range(2)]
+        out[str(j)] = fig
+    return out
+
+
+def _in_dn(noisy: np.ndarray, clean: np.ndarray) -> tuple[np.ndarray, float]:
+    """The clean frames on the noisy ones' DN scale (a least-squares gain and offset: the
+    re-render's clean frames are the optics' output times the exposure gain, before the
+    sensor's conversion) and the sensor noise's mean variance, DN^2."""
+    x, y = clean.ravel()[::97].astype(np.float64), noisy.ravel()[::97].astype(np.float64)
+    g, o = np.polyfit(x, y, 1)
+    dn = g * clean.astype(np.float64) + o
+    return dn, float(np.var(noisy.astype(np.float64) - dn))
+
+
+def noise_kind(noisy: np.ndarray, clean: np.ndarray, block_px: int = 64, step: int = 8,
+               seed: int = 7) -> dict:
+    """The correlator's error against its bound on the rendered content alone: every
+    ``step``-th clean frame cut into a grid of blocks, each block against itself with two
+    independent noise draws (true shift 0: no Monte Carlo floor, no interpolation), the
+    sensor's signal-dependent noise (its variance's linear fit on the clean level, from
+    noisy - clean) and white noise of the same mean power: RMS error / RMS bound per axis."""
+    dn, var = _in_dn(noisy[::step], clean[::step])
+    r = noisy[::step].astype(np.float64) - dn
+    edges = np.quantile(dn, np.linspace(0, 1, 11))
+    idx = np.digitize(dn, edges[1:-1])
+    lvl = np.array([dn[idx == i].mean() for i in range(10)])
+    slope, icpt = np.polyfit(lvl, [r[idx == i].var() for i in range(10)], 1)
+    b = block_px
+    n = dn.shape[-1] // b
+    blocks = dn[:, :n * b, :n * b].reshape(len(dn), n, b, n, b).transpose(0, 1, 3, 2, 4) \
+        .reshape(-1, b, b)
+    rng = np.random.default_rng(seed)
+    out = {"noise_var_dn2": [float(icpt), float(slope)], "blocks": len(blocks)}
+    for name, sd in (("physical", np.sqrt(np.maximum(icpt + slope * blocks, 1e-6))),
+                     ("white", np.full(blocks.shape, np.sqrt(var)))):
+        x = np.rint(blocks + sd * rng.standard_normal(blocks.shape))
+        y = np.rint(blocks + sd * rng.standard_normal(blocks.shape))
+        res = measure_shift(x, y)
+        ok = res.valid
+        out[name] = {"valid": float(ok.mean()),
+                     "rms_px": np.sqrt(np.mean(res.shift[ok] ** 2, axis=0)).tolist(),
+                     "crlb_px": np.sqrt(np.mean(res.crlb[ok] ** 2, axis=0)).tolist()}
+        out[name]["over_crlb"] = (np.array(out[name]["rms_px"])
+                                  / np.array(out[name]["crlb_px"])).tolist()
+    return out
+
+
+def render_phase(m, frames=(5, 60, 120, 180, 240, 300), spps=(4, 32)) -> dict:
+    """Aliasing against the renderer's Monte Carlo noise: each frame's pose rendered (no
+    sensor noise, the optics applied) with sampler seed 101, then with seed 202 at the same
+    pose, and with the stage (the principal point) moved by exactly 0.5 and 1.0 px along
+    track and 0.5 px across, at ``spps`` samples a pixel (Mitsuba's stratified sampler
+    rounds 32 to 36); the run's 4 blocks correlated against the first render: RMS error
+    about its mean (row, col) px over frames and blocks. Aliasing grows at the half pixel
+    and vanishes at the whole one; the sampling noise does not care."""
+    from imc.wiring import rendered_plant
+    from scene.pinhole import ray_keyframes
+
+    plant = rendered_plant.RenderedPlant(m)
+    r, fp, b = plant.renderer, m.camera.focal_plane, m.scenario.correlator.block_px
+    cases = {"seed": ((0.0, 0.0), 202), "row_0.5": ((0.5, 0.0), 202),
+             "row_1.0": ((1.0, 0.0), 202), "col_0.5": ((0.0, 0.5), 202)}
+    err = {f"{c}_{spp}": [] for c in cases for spp in spps}
+    for k in frames:
+        t = float(m.frame_t_s[k]) + np.linspace(0.0, m.exposure_s, rendered_plant.KEYFRAMES)
+
+        def img(off, seed, spp, t=t):
+            r.spp = spp
+            kf = ray_keyframes(m.camera.pose(t), fp, np.tile(off, (len(t), 1)), r.z_start_m)
+            return m.optics.apply(r.render(kf, seed))
+
+        for spp in spps:
+            ref = img((0.0, 0.0), 101, spp)
+            tr = BlockTracker(ref, m.corners, b, m.correlator)
+            for c, (off, seed) in cases.items():
+                res = tr.update(img(off, seed, spp), np.zeros((len(m.corners), 2)))
+                err[f"{c}_{spp}"].append(np.where(res.valid[:, None], res.shift, np.nan))
+    out = {}
+    for key, e in err.items():
+        e = np.concatenate(e)
+        out[key] = np.nanstd(e, axis=0).tolist()
+    return out
 
 
 def rerender(m, seed: int) -> dict[str, np.ndarray]:
@@ -184,8 +347,23 @@ def main() -> None:
                     "rendered again with this noise seed (noisy and without sensor noise)")
     ap.add_argument("--geometry", action="store_true", help="also the strip's geometry "
                     "against K from links measured on each set of frames")
+    ap.add_argument("--floor", action="store_true", help="each link's error RMS on the "
+                    "noisy and the noiseless frames (--rerender, or --keys noisy,clean) "
+                    "against the bound, as the ground measures them: the noiseless floor")
+    ap.add_argument("--white", action="store_true", help="with --floor: also the clean "
+                    "frames plus white Gaussian noise of the sensor noise's mean power")
+    ap.add_argument("--phase", action="store_true", help="only the renders of one pose "
+                    "with other sampler seeds and sub-pixel steps, at 4 and 32 spp")
+    ap.add_argument("--noise-kind", action="store_true", help="only the correlator's error "
+                    "over its bound on --frames' clean content (keys noisy, clean) with the "
+                    "sensor's noise and white noise, true shift 0 (no model is built)")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "out"))
     a = ap.parse_args()
+    if a.noise_kind:
+        with np.load(a.frames) as f:
+            out = noise_kind(f["noisy"], f["clean"])
+        print(json.dumps(out, indent=1), flush=True)
+        return
     d = _scenario()
     d["plant"] = {"fidelity": "rendered"}
     m = build_models(parse_scenario(d))
@@ -197,6 +375,23 @@ def main() -> None:
             keys = a.keys.split(",")
             z = {k: f[k] for k in keys}
     out = {}
+    if a.phase:
+        out = render_phase(m)
+        print(json.dumps(out, indent=1), flush=True)
+        return
+    if a.floor:
+        if a.white and "clean" in z:  # the same radiance with white noise of the same power
+            rng = streams.rng(m.scenario.seed, "sensor", 10 ** 6)  # no frame has it
+            dn, var = _in_dn(z["noisy"], z["clean"])
+            z["white"] = np.rint(dn + rng.normal(0.0, np.sqrt(var), dn.shape))
+            keys = (*keys, "white")
+        t0 = time.perf_counter()
+        rows = floor_errors(m, z)
+        out = {"floor": floor_summary(rows, tuple(keys)), "s": time.perf_counter() - t0}
+        print(json.dumps(out, indent=1), flush=True)
+        Path(a.out).mkdir(parents=True, exist_ok=True)
+        write_json(Path(a.out) / "pair_floor.json", out)
+        return
     for key in keys:
         t0 = time.perf_counter()
         out[key] = {**summary(pair_errors(m, z[key])), "s": time.perf_counter() - t0}

@@ -47,10 +47,23 @@ def _scenario(**product) -> dict:
     return d
 
 
-def _run(d: dict):
-    """(models, plant, loop result, links) of one scenario."""
+def _run(d: dict, floor: bool = False, efficiency: bool = False):
+    """(models, plant, loop result, links) of one scenario; ``floor``: an analytic plant
+    whose links also carry the rendered tracker's Monte Carlo floor
+    (:func:`imc.wiring.rendered_plant.render_floor_px`, measured on this scene), and with
+    ``efficiency`` its bound's part drawn at the correlator's efficiency on the scene
+    (:func:`scene_efficiency`)."""
     m = build_models(parse_scenario(d))
-    plant = build_plant(m)
+    if floor and m.scenario.plant.fidelity == "analytic":
+        from imc.wiring.rendered_plant import analytic_plant, predicted_sigma_px, render_floor_px
+
+        f0 = render_floor_px(m)
+        eff = np.array(scene_efficiency(m)["over_crlb"]) if efficiency else np.ones(2)
+        print(json.dumps({"render_floor_px": f0.tolist(), "efficiency": eff.tolist()}),
+              flush=True)
+        plant = analytic_plant(m, predicted_sigma_px(m), floor_px=f0, efficiency=eff)
+    else:
+        plant = build_plant(m)
     sigma = float(np.mean(plant.sigma_px)) if hasattr(plant, "sigma_px") else None
     parts = build_loop(m, None, sigma)
     res = simulate(plant, parts.estimator, parts.controller, parts.actuator, parts.transport,
@@ -203,6 +216,40 @@ def correlator_efficiency(pairs: int = 150, seed: int = 32) -> dict:
     return out
 
 
+def scene_efficiency(m=None, draws: int = 24) -> dict:
+    """The correlator's error against its bound on no_stage.yaml's own texture as the
+    analytic plant sees it (frame 0's flat-shaded albedo through the optics,
+    :func:`imc.wiring.rendered_plant.base_image`, as ``predicted_sigma_px`` exposes it):
+    ``draws`` pairs of independent sensor-noise draws (the 'texture' stream's members past
+    the two the bound uses), 16 blocks of 64 px, true shift 0: RMS error / RMS bound."""
+    from correlator.tracker import BlockTracker, extract_blocks
+    from imc.wiring import streams
+    from imc.wiring.rendered_plant import base_image, expose_frame
+
+    if m is None:
+        d = _scenario()
+        d["plant"] = {"fidelity": "analytic"}
+        m = build_models(parse_scenario(d))
+    rad = base_image(m, 0)
+    gain = m.sensor.gain_for(m.optics.apply(rad))
+    fp, bp = m.camera.focal_plane, m.scenario.correlator.block_px
+    corners = np.stack(np.meshgrid(np.arange(0, fp.rows - bp + 1, bp),
+                                   np.arange(0, fp.cols - bp + 1, bp), indexing="ij"),
+                       axis=-1).reshape(-1, 2)
+    err, crlb = [], []
+    for i in range(draws):
+        a = expose_frame(m, rad, gain, streams.rng(m.scenario.seed, "texture", 2 + 2 * i))
+        b = expose_frame(m, rad, gain, streams.rng(m.scenario.seed, "texture", 3 + 2 * i))
+        res = BlockTracker(a, corners, bp, m.correlator).correlator.measure(
+            extract_blocks(b, corners, bp))
+        err.append(np.where(res.valid[:, None], res.shift, np.nan))
+        crlb.append(np.where(res.valid[:, None], res.crlb, np.nan))
+    e, c = np.concatenate(err), np.concatenate(crlb)
+    rms, bound = np.sqrt(np.nanmean(e ** 2, axis=0)), np.sqrt(np.nanmean(c ** 2, axis=0))
+    return {"blocks": int(np.isfinite(e[:, 0]).sum()), "rms_px": rms.tolist(),
+            "crlb_px": bound.tolist(), "over_crlb": (rms / bound).tolist()}
+
+
 def solve_timing(frames: tuple[int, ...] = (331, 2000), k_max: int = 4) -> dict:
     """Seconds of one network solve (estimate and covariance) of a synthetic chained tracker
     like no_stage.yaml's (4 blocks of 64 px on a 256-px sensor, the content moving 41.5 px a
@@ -255,6 +302,14 @@ def main() -> None:
                     "with the links' shared noise and weighed as independent")
     ap.add_argument("--links", type=Path, default=None, help="with --run: the links measured "
                     "on its frames, read from this .npz (written there by the first call)")
+    ap.add_argument("--scene-efficiency", action="store_true", help="only the correlator's "
+                    "error over its bound on the analytic plant's view of the scene")
+    ap.add_argument("--scene-eff", action="store_true", help="with --render-floor: the "
+                    "bound's part drawn at the correlator's efficiency on the scene")
+    ap.add_argument("--lengths", action="store_true", help="only the geometry at the three "
+                    "strip lengths")
+    ap.add_argument("--render-floor", action="store_true", help="the analytic plant's "
+                    "links with the rendered tracker's Monte Carlo floor measured on the scene")
     ap.add_argument("--timing", action="store_true", help="only the network solve's time "
                     "with and without the links' shared noise")
     a = ap.parse_args()
@@ -269,6 +324,10 @@ def main() -> None:
         Path(a.out).mkdir(parents=True, exist_ok=True)
         write_json(Path(a.out) / "restitution_orthoimage.json", out)
         return
+    if a.scene_efficiency:
+        out["scene_efficiency"] = scene_efficiency()
+        print(json.dumps(out, indent=1), flush=True)
+        return
     if a.efficiency:
         out["efficiency"] = correlator_efficiency()
         print(json.dumps(out, indent=1), flush=True)
@@ -282,11 +341,16 @@ def main() -> None:
         d = _scenario()
         d["plant"] = {"fidelity": fid}
         m, plant, res, links = (_from_run(d, a.run, a.links) if fid == "rendered" and a.run
-                                else _run(d))
+                                else _run(d, a.render_floor, a.scene_eff))
         r = {"loop_s": time.perf_counter() - t0,
              "efficiency": links.efficiency.tolist(), "links": int(links.valid.sum())}
         if fid == "rendered":
             r["budget"] = budget(m, res, plant)
+        if a.lengths:
+            r["lengths"] = [_geometry(m, links, n) for n in LENGTHS]
+            out[fid] = r
+            print(json.dumps({fid: r}, indent=1), flush=True)
+            continue
         r["baselines"] = [_geometry(m, links, 12800, restitution={"baselines": k,
                                                                   "smoother": sm})
                           for k, sm in ((1, False), (1, True), (2, True), (3, True),
@@ -307,7 +371,9 @@ def main() -> None:
         out[fid] = r
         print(json.dumps({fid: r}, indent=1), flush=True)
     Path(a.out).mkdir(parents=True, exist_ok=True)
-    write_json(Path(a.out) / f"restitution{'_' + a.fidelity if a.fidelity else ''}.json", out)
+    tag = ("_" + a.fidelity if a.fidelity else "") + ("_floor" if a.render_floor else "") \
+        + ("_eff" if a.scene_eff else "")
+    write_json(Path(a.out) / f"restitution{tag}.json", out)
 
 
 if __name__ == "__main__":

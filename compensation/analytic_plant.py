@@ -20,6 +20,14 @@ measured on, half the variance from each frame: links that use the same pixels o
 share that frame's part in proportion to their overlap (measured on no_stage.yaml's rendered
 frames: the ground's pairs from one reference region correlate by 0.4-0.53, pairs on other
 regions of the same frames by 0.0-0.16).
+
+``floor_px``: a link error the correlator's reported bound does not see, drawn with the same
+sharing as the sensor's (each frame's own part over the pixels its pairs use) and never
+reported: a rendered tracker's Monte Carlo pixel integration (each frame rendered with its own
+sampler seed) is such a per-frame noise; on no_stage.yaml's rendered frames at 4 samples a
+pixel it is 0.0064 / 0.0056 px (row / col) per pair of frames, against a reported bound of
+0.011 px (docs/product.md). The record's consistency (the blocks' scatter) then reports it as
+the rendered record does.
 """
 
 from __future__ import annotations
@@ -56,7 +64,12 @@ class AnalyticPlant:
         a pair of frames a < b is measured on (the loop's cut, and the ground's longer
         baselines kept on the sensor); with ``frame_shape`` (rows, cols) and ``block_px`` a
         chain's noise is then the frames' noise over those regions (below); None: the
-        shared-fraction model and every block.
+        shared-fraction model and every block. floor_px : (B, 2) or scalar, px: the
+        per-link error the reported sigma_px leaves out (module docstring), drawn with the
+        sensor's noise (scaled by noise_scale too); 0: none. efficiency : (2,) or scalar,
+        the correlator's actual error over its reported bound on the scene's texture
+        (measured, e.g. 1.12 on no_stage.yaml's): the drawn noise is efficiency x sigma_px,
+        the reported one sigma_px; 1: the bound.
     """
 
     def __init__(self, motion_px: MotionFn, centers_px: np.ndarray, sigma_px,
@@ -69,7 +82,7 @@ class AnalyticPlant:
                  | None = None,
                  pair_regions: Callable[[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]]
                  | None = None, frame_shape: tuple[int, int] | None = None,
-                 block_px: int | None = None):
+                 block_px: int | None = None, floor_px=0.0, efficiency=1.0):
         if not 0.0 <= shared_fraction <= 0.5:
             raise ValueError(f"shared_fraction must be in [0, 0.5], got {shared_fraction}")
         self.chain = bool(chain)
@@ -87,10 +100,20 @@ class AnalyticPlant:
                                         (self.n_blocks, 2)).copy()
         if np.any(self.sigma_px < 0) or not np.all(np.isfinite(self.sigma_px)):
             raise ValueError("sigma_px must be finite and >= 0")
+        self.floor_px = np.broadcast_to(np.asarray(floor_px, dtype=np.float64),
+                                        (self.n_blocks, 2)).copy()
+        if np.any(self.floor_px < 0) or not np.all(np.isfinite(self.floor_px)):
+            raise ValueError("floor_px must be finite and >= 0")
         self.frame_t_s = np.asarray(frame_t_s, dtype=np.float64)
         self.exposure_s = float(exposure_s)
         self.seed = tuple(seed)
         self.noise_scale = float(noise_scale)
+        #: the noise each link carries (B, 2) px: the bound and the unreported floor
+        self.efficiency = np.broadcast_to(np.asarray(efficiency, dtype=np.float64), (2,)).copy()
+        if np.any(self.efficiency <= 0) or not np.all(np.isfinite(self.efficiency)):
+            raise ValueError("efficiency must be finite and > 0")
+        self.drawn_px = np.hypot(self.sigma_px * self.efficiency, self.floor_px) \
+            * self.noise_scale
         frac = (np.arange(samples) + 0.5) / samples
         times = (self.frame_t_s[:, None] + frac[None, :] * self.exposure_s).ravel()
         m = np.asarray(motion_px(times), dtype=np.float64)
@@ -121,7 +144,7 @@ class AnalyticPlant:
             truth = truth - pred + now
             pred, field = np.asarray(now, dtype=np.float64), np.asarray(now_field,
                                                                         dtype=np.float64)
-        shift = truth + self._noise(k, r) * (self.sigma_px * self.noise_scale)
+        shift = truth + self._noise(k, r) * self.drawn_px
         on = np.asarray(blocks, dtype=bool)
         dt = float(self.frame_t_s[k] - self.frame_t_s[r])
         return BlockMeasurements(
@@ -188,7 +211,7 @@ class AnalyticPlant:
         b = np.array([p[1] for p in pairs], dtype=int)
         noise = np.stack([self._noise(bb, aa, None if j == 1 else j) for aa, bb, j in pairs]) \
             if pairs else np.zeros((0, self.n_blocks, 2))
-        d = jit[b] - jit[a] + noise * (self.sigma_px * self.noise_scale)
+        d = jit[b] - jit[a] + noise * self.drawn_px
         sigma = np.broadcast_to(np.maximum(self.sigma_px, 1e-12), d.shape).copy()
         valid = np.ones(d.shape[:2], bool)
         if self.pair_regions is not None:  # the blocks a longer baseline keeps on the sensor

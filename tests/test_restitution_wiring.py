@@ -171,3 +171,50 @@ def test_chain_links_share_the_frames_noise_over_the_pixels_they_share():
     loop = d[j == 1].mean(axis=1)
     lag1 = [np.corrcoef(loop[:-1, ax], loop[1:, ax])[0, 1] for ax in range(2)]
     assert all(-0.2 < c < -0.05 for c in lag1)
+
+
+def test_the_analytic_floor_is_drawn_unreported_and_the_record_consistency_finds_it():
+    # a link error the bound leaves out (the rendered tracker's Monte Carlo floor): drawn with
+    # the sensor's noise at hypot(sigma, floor), reported at sigma; the blocks' scatter about
+    # their link (the record's consistency, imc.wiring.links) reads hypot / sigma, as on the
+    # rendered record; floor 0 keeps today's draws
+    from compensation.analytic_plant import AnalyticPlant
+    from imc.wiring.links import combine_blocks, pair_corners
+
+    corners = np.array([[32, 32], [32, 160], [160, 32], [160, 160]])
+    step = np.array([41.5, 0.3])
+
+    def regions(a, b):
+        st = np.tile(step * (b - a), (4, 1))
+        ref, used = pair_corners(corners, st, 64, np.array([192, 192]))
+        return ref, ref + np.rint(st).astype(int), used
+
+    def plant(floor, eff=1.0):
+        return AnalyticPlant(lambda tt: np.zeros((len(tt), 4, 2)), corners + 31.5, 0.011,
+                             np.arange(1001) / 200.0, 2e-4, seed=(5,), chain=True,
+                             pair_regions=regions, frame_shape=(256, 256), block_px=64,
+                             floor_px=floor, efficiency=eff)
+
+    floor = np.array([0.0064, 0.0056])
+    a, b, d, sig, valid = plant(floor).pair_links(4)
+    np.testing.assert_array_equal(sig[valid], 0.011)  # reported: the bound alone
+    drawn = np.hypot(0.011, floor)
+    np.testing.assert_allclose(np.std(d[valid], axis=0), drawn, rtol=0.05)
+    _, _, nblk, chi2 = combine_blocks(d, sig, valid)
+    ok = nblk >= 2
+    eff = np.sqrt(chi2[ok].sum(axis=0) / (nblk[ok] - 1).sum())
+    np.testing.assert_allclose(eff, drawn / 0.011, rtol=0.05)
+    assert np.all(eff > 1.1)  # the effect it checks: 1.16 / 1.12, against 1.0 without
+    d0 = plant(0.0).pair_links(4)[2]
+    _, _, _, chi0 = combine_blocks(d0, sig, valid)
+    np.testing.assert_allclose(np.sqrt(chi0[ok].sum(axis=0) / (nblk[ok] - 1).sum()), 1.0,
+                               rtol=0.05)
+    # the correlator's efficiency on the texture scales the bound's part, not the report
+    _, _, d2, sig2, _ = plant(floor, 1.3).pair_links(4)
+    np.testing.assert_array_equal(sig2[valid], 0.011)
+    np.testing.assert_allclose(np.std(d2[valid], axis=0), np.hypot(1.3 * 0.011, floor),
+                               rtol=0.05)
+    with pytest.raises(ValueError, match="floor_px"):
+        plant(-0.01)
+    with pytest.raises(ValueError, match="efficiency"):
+        plant(0.0, 0.0)

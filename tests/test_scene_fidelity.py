@@ -151,3 +151,41 @@ def test_in_render_motion_blur_equals_mean_of_subframes(urban_renderer):
     # the blur is real: a static frame differs far beyond the noise
     static = subs[8]
     assert np.std((static - mean_sub)[inner]) > 5 * expected
+
+
+def test_the_rendered_links_floor_is_monte_carlo_noise_falling_as_one_over_sqrt_spp():
+    """One pose rendered with two sampler seeds, no sensor noise, 16 blocks of 64 px: the
+    blocks' apparent shift is the Monte Carlo pixel integration's own (the floor a rendered
+    tracker's links carry beyond the bound the correlator reports, docs/product.md); at 16
+    samples a pixel it is half the 4-sample one (1 / sqrt(spp), within the 16 blocks'
+    sampling spread), and a half-pixel step of the same pose adds no more than that spread
+    (aliasing is not the floor)."""
+    from scene.kernel import Renderer, Sun
+
+    terrain = scene_class("urban", 512.0, 0.4, 2.0, np.random.default_rng(3))
+    cam = _camera(0.0, FocalPlane(10.0, 12e-6, N, N))
+    r = Renderer(terrain, Sun(50.0, 140.0), N, N, spp=4)
+    times = np.linspace(0.0, 2e-4, 5)
+
+    def render(seed, spp, step=0.0):
+        r.spp = spp
+        kf = ray_keyframes(cam.pose(times), cam.focal_plane,
+                           np.tile([step, 0.0], (len(times), 1)), r.z_start_m)
+        return r.render(kf, seed).astype(np.float64)
+
+    b = 64
+    corners = [(i, j) for i in range(0, N, b) for j in range(0, N, b)]
+
+    def rms(a, c, expect=0.0):
+        s = measure_shift(_blocks(a, corners, b), _blocks(c, corners, b))
+        assert s.valid.all()
+        e = s.shift - np.median(s.shift, axis=0)  # about the step, whatever its sign
+        assert np.abs(np.abs(np.median(s.shift[:, 0])) - expect) < 0.01
+        return float(np.sqrt(np.mean(e ** 2)))
+
+    f4 = rms(render(1, 4), render(2, 4))
+    f16 = rms(render(1, 16), render(2, 16))
+    half = rms(render(1, 4), render(2, 4, 0.5), 0.5)
+    assert f4 > 0.002  # a floor worth modelling at the tracker's 0.01 px bound
+    assert 1.3 < f4 / f16 < 3.0  # 2 expected
+    assert half < 1.4 * f4  # a sub-pixel phase change adds no aliasing floor of its size

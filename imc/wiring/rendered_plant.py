@@ -417,8 +417,44 @@ def predicted_sigma_px(m: Models, fill: bool = True,
     return np.where(np.isfinite(crlb), crlb, np.nanmedian(crlb))
 
 
-def analytic_plant(m: Models, sigma_px) -> AnalyticPlant:
-    """Measurements = the camera model's true block shifts + noise of ``sigma_px``."""
+def render_floor_px(m: Models, seeds: int = 3, frame: int = 0) -> np.ndarray:
+    """The rendered tracker's Monte Carlo floor (2,) px (row, col): frame ``frame``'s pose
+    rendered with ``seeds`` sampler seeds (members of the 'render' stream past any frame's)
+    at the scene's samples a pixel, without the sensor's noise, every pair of renders
+    correlated on a grid of non-overlapping blocks (the content identical, so each result is
+    the two renders' sampling noise alone); the RMS over blocks and pairs. What the reported
+    bound leaves out of a rendered link (:class:`compensation.analytic_plant.AnalyticPlant`'s
+    ``floor_px``): it falls as 1 / sqrt(samples a pixel)."""
+    from itertools import combinations
+
+    from scene.pinhole import ray_keyframes
+
+    plant = RenderedPlant(m)
+    fp, bp = m.camera.focal_plane, m.scenario.correlator.block_px
+    t0 = float(m.frame_t_s[frame])
+    times = t0 + np.linspace(0.0, m.exposure_s, KEYFRAMES)
+    kf = ray_keyframes(m.camera.pose(times), fp, np.zeros((len(times), 2)),
+                       plant.renderer.z_start_m)
+    n = len(m.frame_t_s)
+    imgs = [m.optics.apply(plant.renderer.render(kf, streams.render_seed(m.scenario.seed,
+                                                                         n + i)))
+            for i in range(seeds)]
+    corners = np.stack(np.meshgrid(np.arange(0, fp.rows - bp + 1, bp),
+                                   np.arange(0, fp.cols - bp + 1, bp), indexing="ij"),
+                       axis=-1).reshape(-1, 2)
+    errs = []
+    for i, j in combinations(range(seeds), 2):
+        res = BlockTracker(imgs[i], corners, bp, m.correlator).update(
+            imgs[j], np.zeros((len(corners), 2)))
+        errs.append(np.where(res.valid[:, None], res.shift, np.nan))
+    plant.close()
+    return np.sqrt(np.nanmean(np.concatenate(errs) ** 2, axis=0))
+
+
+def analytic_plant(m: Models, sigma_px, floor_px=0.0, efficiency=1.0) -> AnalyticPlant:
+    """Measurements = the camera model's true block shifts + noise of ``sigma_px`` (and of
+    ``floor_px``, px, that the reported sigma leaves out: e.g. :func:`render_floor_px`; the
+    bound's part drawn at ``efficiency`` times it)."""
     cam = m.camera
     t0 = float(m.frame_mid_s[0])
     centers = BlockTracker.centers_from(m.corners, m.scenario.correlator.block_px)
@@ -458,7 +494,8 @@ def analytic_plant(m: Models, sigma_px) -> AnalyticPlant:
                          field_nominal_px=field_nominal, chain=m.chain,
                          predict_between=between if m.chain else None,
                          pair_regions=pair_regions if m.chain else None,
-                         frame_shape=(fp.rows, fp.cols), block_px=bp)
+                         frame_shape=(fp.rows, fp.cols), block_px=bp, floor_px=floor_px,
+                         efficiency=efficiency)
 
 
 def build_plant(m: Models):

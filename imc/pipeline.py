@@ -32,7 +32,7 @@ from imc.wiring.advisories import advisories
 from imc.wiring.blur import window_blur, write_blur_npz
 from imc.wiring.build import Models, build_loop, build_models
 from imc.wiring.checkpoint import ChunkStore
-from imc.wiring.rendered_plant import build_plant
+from imc.wiring.rendered_plant import RenderedPlant, build_plant, render_floor_check
 from imc.wiring.truth import compute_truth
 
 #: frames per checkpoint chunk
@@ -132,6 +132,11 @@ def _run(sc: Scenario, out: Path, save_frames: bool, fresh: bool, progress: Prog
     t_loop = time.perf_counter()
     truth = compute_truth(m, res.record, res.trajectory)
     metrics = summarize(m, res, truth, parts, link_stats)
+    if isinstance(plant, RenderedPlant):  # the simulation's own noise in the tracker's links
+        metrics["tracker"]["render_floor"], line = render_floor_check(
+            m, plant, metrics["tracker"]["median_crlb_px"])
+        if line is not None and warn is not None:
+            warn(line)
     blurs = (window_blur(truth, None), window_blur(truth, res.trajectory))
     metrics["main_imager_blur"] = write_blur_npz(out / "blur.npz", truth, res.trajectory, blurs)
     frames = getattr(plant, "frames", None)

@@ -189,3 +189,25 @@ def test_the_rendered_links_floor_is_monte_carlo_noise_falling_as_one_over_sqrt_
     assert f4 > 0.002  # a floor worth modelling at the tracker's 0.01 px bound
     assert 1.3 < f4 / f16 < 3.0  # 2 expected
     assert half < 1.4 * f4  # a sub-pixel phase change adds no aliasing floor of its size
+
+
+def test_a_rendered_run_names_scene_spp_when_its_floor_rivals_the_bound(monkeypatch):
+    """The run's check (`render_floor_check`) with the floor given: at 0.8x the bound on one
+    axis it warns, naming ``scene.spp`` and a sample count whose 1 / sqrt(spp) floor is at
+    most 0.5x the bound; at 0.4x it stays silent; the figures go to metrics.json."""
+    import re
+    from types import SimpleNamespace
+
+    from imc.wiring import rendered_plant as rp
+
+    m = SimpleNamespace(scenario=SimpleNamespace(scene=SimpleNamespace(spp=4)))
+    crlb = np.array([0.010, 0.012])
+    monkeypatch.setattr(rp, "render_floor_px", lambda m, plant=None: np.array([0.004, 0.0096]))
+    info, line = rp.render_floor_check(m, None, crlb)
+    assert line is not None and line.startswith("scene.spp = 4:")
+    need = int(re.search(r"scene\.spp >= (\d+)", line).group(1))
+    assert 0.0096 * np.sqrt(4 / need) / 0.012 <= rp.RENDER_FLOOR_WARN + 1e-12
+    assert 0.0096 * np.sqrt(4 / (need - 1)) / 0.012 > rp.RENDER_FLOOR_WARN  # the least that does
+    assert np.allclose(info["over_crlb"], [0.4, 0.8]) and info["spp"] == 4
+    monkeypatch.setattr(rp, "render_floor_px", lambda m, plant=None: np.array([0.004, 0.0048]))
+    assert rp.render_floor_check(m, None, crlb)[1] is None

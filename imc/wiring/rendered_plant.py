@@ -417,19 +417,23 @@ def predicted_sigma_px(m: Models, fill: bool = True,
     return np.where(np.isfinite(crlb), crlb, np.nanmedian(crlb))
 
 
-def render_floor_px(m: Models, seeds: int = 3, frame: int = 0) -> np.ndarray:
+def render_floor_px(m: Models, seeds: int = 3, frame: int = 0,
+                    plant: RenderedPlant | None = None) -> np.ndarray:
     """The rendered tracker's Monte Carlo floor (2,) px (row, col): frame ``frame``'s pose
     rendered with ``seeds`` sampler seeds (members of the 'render' stream past any frame's)
     at the scene's samples a pixel, without the sensor's noise, every pair of renders
     correlated on a grid of non-overlapping blocks (the content identical, so each result is
     the two renders' sampling noise alone); the RMS over blocks and pairs. What the reported
     bound leaves out of a rendered link (:class:`compensation.analytic_plant.AnalyticPlant`'s
-    ``floor_px``): it falls as 1 / sqrt(samples a pixel)."""
+    ``floor_px``): it falls as 1 / sqrt(samples a pixel). ``plant``: a run's plant, whose
+    renderer is reused (and left open); None: one is built and closed."""
     from itertools import combinations
 
     from scene.pinhole import ray_keyframes
 
-    plant = RenderedPlant(m)
+    own = plant is None
+    if own:
+        plant = RenderedPlant(m)
     fp, bp = m.camera.focal_plane, m.scenario.correlator.block_px
     t0 = float(m.frame_t_s[frame])
     times = t0 + np.linspace(0.0, m.exposure_s, KEYFRAMES)
@@ -447,8 +451,41 @@ def render_floor_px(m: Models, seeds: int = 3, frame: int = 0) -> np.ndarray:
         res = BlockTracker(imgs[i], corners, bp, m.correlator).update(
             imgs[j], np.zeros((len(corners), 2)))
         errs.append(np.where(res.valid[:, None], res.shift, np.nan))
-    plant.close()
+    if own:
+        plant.close()
     return np.sqrt(np.nanmean(np.concatenate(errs) ** 2, axis=0))
+
+
+#: the renderer's Monte Carlo floor, as a fraction of the correlator's median bound, above
+#: which a rendered run warns (sqrt(1 + 0.5^2) = 1.12: the tracker's error 12 % pessimistic)
+RENDER_FLOOR_WARN = 0.5
+
+
+def render_floor_check(m: Models, plant: RenderedPlant, crlb_px) -> tuple[dict, str | None]:
+    """The rendered tracker's Monte Carlo floor (:func:`render_floor_px` on the run's own
+    renderer) against the correlator's median bound ``crlb_px`` (2,) px: the figures for
+    metrics.json's ``tracker.render_floor`` and, when the floor exceeds
+    :data:`RENDER_FLOOR_WARN` of the bound on either axis, one line naming ``scene.spp``
+    and the samples a pixel that would bring it there (the floor falls as
+    1 / sqrt(samples a pixel)). A detector integrates its pixel exactly: the floor is the
+    simulation's, not the camera's, and the rendered tracker's error is pessimistic by
+    sqrt(1 + (floor / bound)^2)."""
+    floor = render_floor_px(m, plant=plant)
+    crlb = np.asarray(crlb_px, dtype=np.float64)
+    ratio = floor / np.where(crlb > 0, crlb, np.nan)
+    spp = int(m.scenario.scene.spp)
+    info = {"floor_px": [float(x) for x in floor], "over_crlb": [float(x) for x in ratio],
+            "spp": spp}
+    worst = float(np.nanmax(ratio)) if np.any(np.isfinite(ratio)) else 0.0
+    if not worst > RENDER_FLOOR_WARN:
+        return info, None
+    need = int(np.ceil(spp * (worst / RENDER_FLOOR_WARN) ** 2))
+    return info, (f"scene.spp = {spp}: the renderer's Monte Carlo pixel integration adds "
+                  f"{floor[0]:.4f} / {floor[1]:.4f} px (row / col) to each tracker link, "
+                  f"{worst:.2f}x the correlator's bound; a detector has no such noise, so "
+                  f"the rendered tracker's figures are pessimistic by up to "
+                  f"{np.sqrt(1.0 + worst ** 2):.2f}x; set scene.spp >= {need} to bring it "
+                  f"below {RENDER_FLOOR_WARN:g}x")
 
 
 def analytic_plant(m: Models, sigma_px, floor_px=0.0, efficiency=1.0) -> AnalyticPlant:

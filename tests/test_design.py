@@ -601,3 +601,15 @@ def test_the_bounds_on_the_footprints_albedo_equal_the_whole_tiles(base, texel_m
     b_new, b_old = tracker_bound(m_new, radiance=rad_new), tracker_bound(m_old)
     assert np.array_equal(b_new[0], b_old[0]) and b_new[1] == b_old[1]
     assert m_new.chain == m_old.chain
+
+
+def test_the_bases_bound_alone_equals_the_searchs():
+    """`base_crlb_px` (the bound a design's record is asked at when the search did not give
+    one) equals the bound the search computed on the same base: both from frame 0's
+    footprint (`bound_frame0`)."""
+    from imc.workflow.design import base_crlb_px
+
+    d = parse_design(_design(tracker_crlb_px=None))
+    alone = base_crlb_px(d)
+    assert np.isfinite(alone) and alone > 0
+    assert alone == pytest.approx(evaluate(d).base_crlb_px, rel=1e-12)

@@ -376,7 +376,8 @@ def base_image(m: Models, margin_px: int | np.ndarray,
     (r + margin rows, c + margin cols). ``window``: (albedo, texel_m, (row0, col0)), the
     part of the tile's albedo from texel (row0, col0) that covers :func:`albedo_span`
     (e.g. :meth:`scene.terrain.ProceduralDraws.albedo_window`), read instead of
-    ``m.terrain.albedo``: the same image, bit for bit."""
+    ``m.terrain.albedo``: the same image within one float32 unit of the albedo's last
+    place (bit for bit on the tested scenes)."""
     from scipy.ndimage import gaussian_filter, map_coordinates
 
     row, col, sig = albedo_texels(m, margin_px, after_px,
@@ -440,9 +441,12 @@ def render_floor_px(m: Models, seeds: int = 3, frame: int = 0,
     kf = ray_keyframes(m.camera.pose(times), fp, np.zeros((len(times), 2)),
                        plant.renderer.z_start_m)
     n = len(m.frame_t_s)
-    imgs = [m.optics.apply(plant.renderer.render(kf, streams.render_seed(m.scenario.seed,
-                                                                         n + i)))
-            for i in range(seeds)]
+    try:
+        imgs = [m.optics.apply(plant.renderer.render(
+            kf, streams.render_seed(m.scenario.seed, n + i))) for i in range(seeds)]
+    finally:
+        if own:
+            plant.close()
     corners = np.stack(np.meshgrid(np.arange(0, fp.rows - bp + 1, bp),
                                    np.arange(0, fp.cols - bp + 1, bp), indexing="ij"),
                        axis=-1).reshape(-1, 2)
@@ -451,8 +455,6 @@ def render_floor_px(m: Models, seeds: int = 3, frame: int = 0,
         res = BlockTracker(imgs[i], corners, bp, m.correlator).update(
             imgs[j], np.zeros((len(corners), 2)))
         errs.append(np.where(res.valid[:, None], res.shift, np.nan))
-    if own:
-        plant.close()
     return np.sqrt(np.nanmean(np.concatenate(errs) ** 2, axis=0))
 
 

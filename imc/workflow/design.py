@@ -313,7 +313,8 @@ def base_crlb_px(design: Design) -> float:
     if design.config.tracker_crlb_px is not None:
         return design.config.tracker_crlb_px
     fid = design.config.verify.fidelity
-    crlb, kept = tracker_bound(*bound_frame0(design.base, fid), fidelity=fid)
+    m, rad = bound_frame0(design.base, fid)
+    crlb, kept = tracker_bound(m, fid, radiance=rad)
     return float(np.mean(crlb) / np.sqrt(kept))
 
 
@@ -468,8 +469,8 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
         room = base.camera.tracker.rows - b - OVERLAP_MARGIN_PX
         kmax = np.maximum(1, np.floor(room / (nominal_line_rate_hz(base) / rate))).astype(int)
     corr = ground == "correction"
-    geo_c, geo_a = search_record_geometry(base, m, dist, rate, kmax, b, nb, sigma,
-                                          corr & np.isfinite(sigma))
+    geo_c, geo_a, net_c, net_a = search_record_geometry(base, m, dist, rate, kmax, b, nb,
+                                                        sigma, corr & np.isfinite(sigma))
     values = {
         "with_compensation.rms_px": rms,
         "with_compensation.rms_px.0": rms[:, 0],
@@ -526,7 +527,9 @@ def evaluate(design: Design, progress: Callable[[int, int], None] | None = None,
     return Candidates(columns, predicted, marg, feasible, names[k], worst, cost,
                       time.perf_counter() - t0, len(loops), loop_s,
                       {"sigma_px": sigma, "blocks_overlapping": n_eff,
-                       "block_valid_probability": p_kept, "expected_breaks": breaks},
+                       "block_valid_probability": p_kept, "expected_breaks": breaks,
+                       # (n, 2 constant / affine, 2 axes) px: the record's network part
+                       "geometry_net_px": np.stack([net_c, net_a], axis=1)},
                       base_crlb, base_s)
 
 
@@ -833,6 +836,8 @@ def correction_limit(design: Design, c: Candidates, n_freqs: int = 48) -> dict |
     f0 = float(dist.sin_f_hz.max())
     freqs = np.geomspace(f0, 0.5 * rate, n_freqs)
     sigma = float(c.extras["sigma_px"][i])
+    # the record's network part (search_record_geometry's, without the base's floor)
+    c_net, a_net = np.nan_to_num(c.extras["geometry_net_px"][i])
     table, f_max, why = [], f0, None
     for f in freqs:
         dist_f = dataclasses.replace(dist, sin_f_hz=dist.sin_f_hz * (f / f0))
@@ -843,16 +848,14 @@ def correction_limit(design: Design, c: Candidates, n_freqs: int = 48) -> dict |
             np.array(p.rms_det_px), np.array(p.var_rnd_px2), np.array(p.noise_gain), sigma,
             np.array(p.mtf_det_worst), np.array(p.var_rnd_blur_px2),
             np.array(p.noise_gain_blur))
-        c_u, a_u = (float(c.predicted[q][i]) if q in c.predicted else 0.0 for q in (
-            "product.geometry.open.after.rms_px", "product.geometry.open.affine.rms_px"))
         values = {"with_compensation.rms_px": rms, "with_compensation.rms_px.0": rms[0],
                   "with_compensation.rms_px.1": rms[1],
                   "with_compensation.rms_total_px": total,
                   "with_compensation.mtf_nyquist_worst": mtf,
                   "with_compensation.mtf_nyquist_worst.0": mtf[0],
                   "with_compensation.mtf_nyquist_worst.1": mtf[1],
-                  "product.geometry.open.after.rms_px": np.hypot(c_u, floor_c),
-                  "product.geometry.open.affine.rms_px": np.hypot(a_u, floor_a)}
+                  "product.geometry.open.after.rms_px": np.hypot(c_net, floor_c),
+                  "product.geometry.open.affine.rms_px": np.hypot(a_net, floor_a)}
         margins = {q: float(np.min(margin_of(q, b, np.atleast_1d(values[q]))))
                    for q, b in cfg.requirements.items() if q in values}
         worst_q = min(margins, key=margins.get) if margins else None
@@ -891,6 +894,8 @@ def design_json(design: Design, c: Candidates, front: np.ndarray, chosen: int | 
         "tracker_crlb_px": crlb_px,
         "tracker_snr": snr,
         "correlator_efficiency": eff.at(snr, design.base.correlator.block_px),
+        "correlator_efficiency_at": "the base's block size (each candidate's own in "
+                                    "its sigma_px)",
         "correlator_efficiency_spread": eff.spread,
         "correlator_efficiency_note": f"{design.config.verify.fidelity}: {eff.source}",
         "margin_required": design.config.margin,

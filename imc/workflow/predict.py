@@ -1026,13 +1026,15 @@ def bound_frame0(sc: Scenario, fidelity: str = "texture"):
     (:func:`tracker_bound`, :func:`tracker_bounds`): at 'rendered' fidelity Mitsuba's frame
     0 on the whole tile; else the albedo under frame 0's footprint. A procedural tile is
     then not built whole: its DEM and the albedo's window under the footprint only
-    (:func:`imc.wiring.build.procedural_draws`; the same image bit for bit: the
+    (:func:`imc.wiring.build.procedural_draws`; the same image within one float32 unit of
+    the albedo's last place, bit for bit on the tested scenes: the
     smallsat's 12.2 km tile in ~1/5 of its CPU time); ``Models.terrain`` is then its
     geometry with a stand-in albedo (geometry, coverage and flow as on the whole tile).
 
     Returns
     -------
-    (Models, (rows, cols) radiance of frame 0, the albedo's units).
+    (Models, (rows, cols) frame 0: the albedo's units on the texture plant, the renderer's
+    radiance on the rendered one).
     """
     from imc.wiring.build import build_models, procedural_draws
     from imc.wiring.rendered_plant import albedo_span, albedo_texels, base_image
@@ -1222,8 +1224,9 @@ def record_prediction(m, sigma_px, dist: Disturbance, baselines: int
     sc = m.scenario
     sigma = np.broadcast_to(np.asarray(sigma_px, float), (2,))
     geometry = chain_geometry(m)
-    if not sc.product.enabled:
-        c_u, a_u = record_geometry_unit(m.rate_hz, product_span_s(sc), int(baselines))
+    if not sc.product.enabled:  # as the search predicts it (search_record_geometry)
+        c_u, a_u = record_geometry_unit(m.rate_hz, product_span_s(sc), int(baselines),
+                                        geometry=geometry if baselines > 0 else None)
         return c_u * sigma, a_u * sigma, np.zeros((2, 2))
     from imc.wiring.product import plan_product
 
@@ -1242,21 +1245,22 @@ def record_prediction(m, sigma_px, dist: Disturbance, baselines: int
 def search_record_geometry(base: Scenario, m, dist: Disturbance, rate_hz: np.ndarray,
                            baselines: np.ndarray, block_px: np.ndarray,
                            n_blocks: np.ndarray, sigma_px: np.ndarray, use: np.ndarray
-                           ) -> tuple[np.ndarray, np.ndarray]:
-    """The design search's geometry after ground correction (after a constant, after an
-    affine) (n, 2) px per candidate (NaN where not ``use``): the network's covariance over
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The design search's geometry after ground correction (after a constant, after an affine)
+    (n, 2) px per candidate (NaN where not ``use``), then the same two without the floor (the
+    network's part alone, which other jitter frequencies share): the network's covariance over
     the product's span (:func:`record_geometry_unit`, once per rate, baselines and, for a
-    scanning tracker, block size and count: the links share their frames' pixels as the
-    blocks are cut, :class:`ChainGeometry` with the base's nominal flow per frame) times
-    the candidate's tracker error ``sigma_px`` (n,), the perfect record's floor
+    scanning tracker, block size and count: the links share their frames' pixels as the blocks
+    are cut, :class:`ChainGeometry` with the base's nominal flow per frame) times the
+    candidate's tracker error ``sigma_px`` (n,), the perfect record's floor
     (:func:`record_floor_px`, once per rate) added in quadrature. Unlike
-    :func:`record_prediction` the smoother is not modelled here (it needs a solve per
-    tracker error): the search's geometry is the unsmoothed record's, which the smoother
-    only lowers."""
+    :func:`record_prediction` the smoother is not modelled here (it needs a solve per tracker
+    error): the search's geometry is the unsmoothed record's, which the smoother only lowers."""
     out_c = np.full((len(rate_hz), 2), np.nan)
     out_a = np.full((len(rate_hz), 2), np.nan)
+    net_c, net_a = out_c.copy(), out_a.copy()
     if not use.any():
-        return out_c, out_a
+        return out_c, out_a, net_c, net_a
     span = product_span_s(base)
     flow = image_flow_px_per_s(m) if m.chain else None
     plan = None
@@ -1282,9 +1286,10 @@ def search_record_geometry(base: Scenario, m, dist: Disturbance, rate_hz: np.nda
         sel = use & (rate_hz == r_hz) & (baselines == k_b) & (block_px == b_px) \
             & (n_blocks == n_b)
         sg = sigma_px[sel][:, None]
-        out_c[sel] = np.hypot(c_u * sg, floors[r_hz][0][None])
-        out_a[sel] = np.hypot(a_u * sg, floors[r_hz][1][None])
-    return out_c, out_a
+        net_c[sel], net_a[sel] = c_u * sg, a_u * sg
+        out_c[sel] = np.hypot(net_c[sel], floors[r_hz][0][None])
+        out_a[sel] = np.hypot(net_a[sel], floors[r_hz][1][None])
+    return out_c, out_a, net_c, net_a
 
 
 def predict_scenario(sc: Scenario, fidelity: str | None = None,

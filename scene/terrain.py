@@ -145,6 +145,17 @@ def nearest_seed(seeds: np.ndarray, n: int, block_px: int = 8) -> np.ndarray:
 #: tile) of the field-scale texture and of the fine grain
 _TEXTURE = (2.2, 2.0)
 _FINE = (1.2, 4.0)
+#: the DEM's (spectral exponent, cutoff in cycles a tile), as _TEXTURE
+_DEM = (3.5, 1.0)
+
+
+def _tile_sizes(size_m: float, texel_m: float, dem_spacing_m: float) -> tuple[int, int]:
+    """(texels, DEM posts) a side of a procedural tile; ValueError when too small."""
+    n = int(round(size_m / texel_m))
+    m = int(round(size_m / dem_spacing_m)) + 1
+    if n < 16 or m < 3:
+        raise ValueError("scene tile too small for its texel size / DEM spacing")
+    return n, m
 
 
 def _fields(size_m: float, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -190,10 +201,7 @@ def procedural_terrain(
     smooth fractal surface with the requested RMS relief. :func:`procedural_draws` gives the
     same tile's DEM and any window of its albedo without building the whole albedo.
     """
-    n = int(round(size_m / texel_m))
-    m = int(round(size_m / dem_spacing_m)) + 1
-    if n < 16 or m < 3:
-        raise ValueError("scene tile too small for its texel size / DEM spacing")
+    n, m = _tile_sizes(size_m, texel_m, dem_spacing_m)
     # field patches: nearest of random seed points, each cell its own albedo
     seeds, field_albedo = _fields(size_m, n, rng)
     yy = np.arange(n, dtype=np.float32)[:, None]  # (row, col) of every texel, broadcast
@@ -202,7 +210,7 @@ def procedural_terrain(
     texture = fractal_noise((n, n), _TEXTURE[0], rng, cutoff_cycles=_TEXTURE[1])
     fine = fractal_noise((n, n), _FINE[0], rng, cutoff_cycles=_FINE[1])
     albedo = _mix(fields, texture, fine, _roads(n, rng), yy, xx, texel_m)
-    dem = fractal_noise((m, m), 3.5, rng, cutoff_cycles=1.0) * relief_rms_m
+    dem = fractal_noise((m, m), _DEM[0], rng, cutoff_cycles=_DEM[1]) * relief_rms_m
     return Terrain(albedo=albedo, texel_m=texel_m, dem_m=dem.astype(np.float32),
                    dem_spacing_m=dem_spacing_m)
 
@@ -312,10 +320,7 @@ def procedural_draws(size_m: float, texel_m: float, dem_spacing_m: float,
     """:func:`procedural_terrain`'s tile as its draws from ``rng`` (advanced as that
     advances it): the textures' white noise is drawn in chunks of ``chunk`` rows and
     dropped (:meth:`ProceduralDraws.albedo_window` draws it again), the DEM built."""
-    n = int(round(size_m / texel_m))
-    m = int(round(size_m / dem_spacing_m)) + 1
-    if n < 16 or m < 3:
-        raise ValueError("scene tile too small for its texel size / DEM spacing")
+    n, m = _tile_sizes(size_m, texel_m, dem_spacing_m)
     seeds, field_albedo = _fields(size_m, n, rng)
     noise_rng = copy.deepcopy(rng)
     buf = np.empty((min(chunk, n), n))
@@ -323,6 +328,6 @@ def procedural_draws(size_m: float, texel_m: float, dem_spacing_m: float,
         for a in range(0, n, chunk):
             rng.standard_normal(out=buf[:min(chunk, n - a)])
     roads = _roads(n, rng)
-    dem = fractal_noise((m, m), 3.5, rng, cutoff_cycles=1.0) * relief_rms_m
+    dem = fractal_noise((m, m), _DEM[0], rng, cutoff_cycles=_DEM[1]) * relief_rms_m
     return ProceduralDraws(size_m, texel_m, dem_spacing_m, n, seeds, field_albedo, noise_rng,
                            roads, dem.astype(np.float32))

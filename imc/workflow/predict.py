@@ -1242,6 +1242,63 @@ def record_prediction(m, sigma_px, dist: Disturbance, baselines: int
     return np.hypot(c, floor[0]), np.hypot(a, floor[1]), floor
 
 
+def identified_prediction(model, controller, sc: Scenario, dist: Disturbance, m
+                          ) -> LoopPrediction:
+    """:func:`predict_model` of a run's loop whose Kalman predictor identifies lines
+    (``identify``): the jitter's sinusoids it can find (at or above 1.5 / its window and
+    below half the frame rate, not already listed) are followed from its first
+    identification on (0.9 of its window, as :func:`imc.wiring.advisories.lock_summary`
+    says it), so the exposures before it are predicted with the listed lines only and those
+    after it with the found lines added (at the largest found amplitude's process noise),
+    the figures combined over the exposures: variances by their count, the worst MTF the
+    worse of the two. Any other loop: :func:`predict_model` alone."""
+    import dataclasses as dc
+
+    plain = predict_model(model, sc, dist, m.exposure_s)
+    if not getattr(controller, "identify", False) or not len(dist.sin_f_hz):
+        return plain
+    window_s = float(controller.identification_window_s)
+    t_id = 0.9 * window_s
+    listed = {round(float(f), 6) for f in controller.lines_hz}
+    inband = (dist.sin_f_hz >= 1.5 / window_s) & (dist.sin_f_hz < 0.5 * m.rate_hz)
+    found = sorted({round(float(f), 6) for f in dist.sin_f_hz[inband]} - listed)
+    start, end, _ = exposure_windows(sc)
+    if not found or t_id >= end:
+        return plain
+    amp = float(np.max(dist.sin_a_px[inband]))
+    ctl = dc.replace(controller, lines_hz=tuple(controller.lines_hz) + tuple(found),
+                     line_amplitude_px=max(amp, float(controller.line_amplitude_px)))
+    mi = sc.camera.main_imager
+    after_sc = sc.model_copy(update={"camera": sc.camera.model_copy(update={
+        "main_imager": mi.model_copy(update={"start_s": max(float(mi.start_s), t_id)})})})
+    after = predict_model(dc.replace(model, controller=ctl), after_sc, dist, m.exposure_s,
+                          lock=False)
+    w_b = float(np.clip((t_id - start) / (end - start), 0.0, 1.0))
+    if w_b <= 0.0:
+        return dc.replace(after, lock_s=plain.lock_s)
+    before = plain if w_b >= 1.0 else predict_model(
+        model, sc.model_copy(update={"duration_s": t_id}), dist, m.exposure_s)
+    w_a = 1.0 - w_b
+
+    def mix(b, a):
+        return tuple(np.sqrt(w_b * np.square(b) + w_a * np.square(a)).tolist())
+
+    def mean(b, a):
+        return tuple((w_b * np.asarray(b) + w_a * np.asarray(a)).tolist())
+
+    curve = None if before.mtf_det_curve is None or after.mtf_det_curve is None else \
+        np.minimum(before.mtf_det_curve, after.mtf_det_curve)
+    return LoopPrediction(
+        before.ok and after.ok, before.why or after.why, mix(before.rms_det_px,
+                                                             after.rms_det_px),
+        mean(before.var_rnd_px2, after.var_rnd_px2),
+        float(np.sqrt(w_b * before.noise_gain ** 2 + w_a * after.noise_gain ** 2)),
+        tuple(np.minimum(before.mtf_det_worst, after.mtf_det_worst).tolist()),
+        plain.lock_s, curve,
+        float(np.sqrt(w_b * before.noise_gain_blur ** 2 + w_a * after.noise_gain_blur ** 2)),
+        mean(before.var_rnd_blur_px2, after.var_rnd_blur_px2))
+
+
 def search_record_geometry(base: Scenario, m, dist: Disturbance, rate_hz: np.ndarray,
                            baselines: np.ndarray, block_px: np.ndarray,
                            n_blocks: np.ndarray, sigma_px: np.ndarray, use: np.ndarray
@@ -1306,7 +1363,8 @@ def predict_scenario(sc: Scenario, fidelity: str | None = None,
     parts = build_loop(m)
     model = parts.model if sc.compensation.enabled else None
     dist = Disturbance.from_scenario(sc)
-    p = predict_model(model, sc, dist, m.exposure_s)
+    p = identified_prediction(model, parts.controller, sc, dist, m) if model is not None \
+        else predict_model(model, sc, dist, m.exposure_s)
     fid = fidelity or sc.plant.fidelity
     crlb, kept = tracker_bound(m, fid)
     eff = correlator_efficiency(fid, sc.scene.kind) if efficiency is None else Efficiency(

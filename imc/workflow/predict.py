@@ -1,6 +1,8 @@
 """Fast predictions of a candidate design's metrics (milliseconds per candidate), from the
 models imcsim already has; what `imc design` searches with, and what
-:func:`predict_scenario` predicts a whole scenario with (its own loop as a run wires it).
+:func:`predict_scenario` predicts a whole scenario with (its own loop as a run wires it,
+and a Kalman predictor that identifies lines following the jitter's findable sinusoids from
+its first identification on: :func:`identified_prediction`).
 
 - The loop (:class:`compensation.analytic.LoopModel`, built here as
   :func:`imc.wiring.build.build_loop` builds it): the sinusoids' residual is the linear loop

@@ -1275,6 +1275,8 @@ def identified_prediction(model, controller, sc: Scenario, dist: Disturbance, m
         "main_imager": mi.model_copy(update={"start_s": max(float(mi.start_s), t_id)})})})
     after = predict_model(dc.replace(model, controller=ctl), after_sc, dist, m.exposure_s,
                           lock=False)
+    if not after.ok:  # no prediction of the loop with the found lines: the listed ones'
+        return plain
     w_b = float(np.clip((t_id - start) / (end - start), 0.0, 1.0))
     if w_b <= 0.0:
         return dc.replace(after, lock_s=plain.lock_s)

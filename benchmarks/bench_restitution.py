@@ -292,6 +292,8 @@ def main() -> None:
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "out"))
     ap.add_argument("--run", type=Path, default=None, help="the rendered record of `imc run "
                     "scenarios/no_stage.yaml --save-frames --out RUN` instead of a new loop")
+    ap.add_argument("--seed", type=int, default=None, help="the scenario's seed (its noise "
+                    "streams: another realisation of the same strip); default the YAML's")
     ap.add_argument("--fidelity", choices=("rendered", "analytic"), default=None,
                     help="one plant only")
     ap.add_argument("--efficiency", action="store_true", help="only the correlator's "
@@ -340,6 +342,8 @@ def main() -> None:
         t0 = time.perf_counter()
         d = _scenario()
         d["plant"] = {"fidelity": fid}
+        if a.seed is not None:
+            d["seed"] = int(a.seed)
         m, plant, res, links = (_from_run(d, a.run, a.links) if fid == "rendered" and a.run
                                 else _run(d, a.render_floor, a.scene_eff))
         r = {"loop_s": time.perf_counter() - t0,
@@ -372,7 +376,7 @@ def main() -> None:
         print(json.dumps({fid: r}, indent=1), flush=True)
     Path(a.out).mkdir(parents=True, exist_ok=True)
     tag = ("_" + a.fidelity if a.fidelity else "") + ("_floor" if a.render_floor else "") \
-        + ("_eff" if a.scene_eff else "")
+        + ("_eff" if a.scene_eff else "") + (f"_seed{a.seed}" if a.seed is not None else "")
     write_json(Path(a.out) / f"restitution{tag}.json", out)
 
 

@@ -446,6 +446,9 @@ class SceneConfig(_Model):
                                         "by default; set cover 0 to remove)")
     geotiff: GeoTiffConfig | None = Field(None, description="kind geotiff: the files")
     spp: int = Field(4, ge=1, le=4096, description="samples per pixel (also sample time)")
+    quadrature: bool = Field(True, description="integrate each pixel and exposure with a fixed "
+                             "quadrature, the same every frame (false: Monte Carlo, with noise "
+                             "falling as 1 / sqrt(spp))")
 
     @model_validator(mode="after")
     def _sizes(self) -> SceneConfig:

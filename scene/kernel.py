@@ -79,6 +79,25 @@ def versions() -> dict[str, str]:
     return out
 
 
+def quadrature_grid(spp: int) -> int:
+    """g, the side of the stratified sampler's g x g sub-pixel grid at ``spp`` samples a
+    pixel (Mitsuba rounds spp up to g^2)."""
+    g = 1
+    while g * g < spp:
+        g += 1
+    return g
+
+
+def quadrature_multiplier(g: int) -> int:
+    """The multiplier h that maps sub-pixel cell index c = i g + j to time stratum c h mod g^2:
+    the integer nearest g^2 / golden ratio coprime with g^2 (1 when g = 1)."""
+    n2 = g * g
+    if n2 == 1:
+        return 1
+    x = n2 / 1.6180339887498949
+    return min((h for h in range(1, n2) if np.gcd(h, n2) == 1), key=lambda h: (abs(h - x), h))
+
+
 def _register_pinhole(mi: Any, dr: Any) -> None:
     """Register the 'imc_pinhole' sensor plugin (idempotent per process and variant)."""
     scalar = mi.variant().startswith("scalar")
@@ -89,7 +108,13 @@ def _register_pinhole(mi: Any, dr: Any) -> None:
         def __init__(self, props):
             super().__init__(props)
             self.n_keyframes = 2
+            self.quadrature = None
             self.set_keyframes(np.zeros((2, KEYFRAME_FLOATS)))
+
+        def set_quadrature(self, grid: int | None, rows: int, cols: int) -> None:
+            """Pair each sub-pixel cell of a ``grid`` x ``grid`` stratification with its own
+            exposure-time stratum (None: the sampler's own, per-pixel random pairing)."""
+            self.quadrature = None if grid is None else (int(grid), int(rows), int(cols))
 
         def set_keyframes(self, kf: np.ndarray) -> None:
             kf = np.asarray(kf, dtype=np.float64)
@@ -121,6 +146,8 @@ def _register_pinhole(mi: Any, dr: Any) -> None:
 
         def sample_ray(self, time, wavelength_sample, position_sample, aperture_sample,
                        active=True):
+            if self.quadrature is not None:
+                time = self._paired_time(time, position_sample)
             n = self.n_keyframes
             s = dr.clip(time, 0.0, 1.0) * (n - 1)
             k = dr.minimum(mi.UInt32(dr.floor(s)), n - 2)
@@ -132,6 +159,21 @@ def _register_pinhole(mi: Any, dr: Any) -> None:
             o = dr.lerp(o0, o1, a)
             d = dr.normalize(dr.lerp(dr.normalize(d0), dr.normalize(d1), a))
             return mi.Ray3f(o, d, time, []), mi.Spectrum(1.0)
+
+        def _paired_time(self, time, position_sample):
+            """The exposure instant of a sample: its sub-pixel cell (i, j) of the g x g grid
+            takes time stratum (i g + j) h mod g^2 (h coprime with g^2, near g^2 / golden
+            ratio: the strata not ordered with row), at the sampler's offset in its stratum."""
+            g, rows, cols = self.quadrature
+            n2 = g * g
+            h = quadrature_multiplier(g)
+            fx = position_sample.x * cols
+            fy = position_sample.y * rows
+            j = dr.minimum(mi.Int32(dr.floor((fx - dr.floor(fx)) * g)), g - 1)
+            i = dr.minimum(mi.Int32(dr.floor((fy - dr.floor(fy)) * g)), g - 1)
+            k = ((i * g + j) * h) % n2
+            u = time * n2
+            return (mi.Float(k) + (u - dr.floor(u))) / n2
 
         def sample_ray_differential(self, time, wavelength_sample, position_sample,
                                     aperture_sample, active=True):
@@ -153,7 +195,15 @@ class Renderer:
     terrain : the tile (albedo + DEM) in the local ENU frame.
     sun : sun direction and sky level.
     rows, cols : film size in pixels (the tracking sensor).
-    spp : samples per pixel (stratified; also samples the exposure time).
+    spp : samples per pixel (stratified over the pixel and the exposure time; Mitsuba rounds
+        it up to a square g^2).
+    quadrature : True (default): a fixed quadrature of the pixel and the exposure, the same
+        for every pixel, frame and seed: the stratified sampler's stratum centres (no jitter),
+        each sub-pixel cell paired with its own time stratum (:func:`quadrature_multiplier`).
+        A detector integrates its pixel the same way every frame, so two renders of one pose
+        agree and a tracker's link carries no Monte Carlo noise, only the quadrature's small,
+        shift-dependent error. False: Mitsuba's jittered strata with random pairing (unbiased
+        Monte Carlo; its noise falls as 1 / sqrt(spp)).
     choice : Mitsuba variant; by default :func:`scene.variant.choose_variant`.
     clouds : an optional cloud layer (its own mesh above the terrain: parallax and shadows).
     ceiling_m : the lowest camera height (ENU) it will render from, if known: rays then start
@@ -163,12 +213,13 @@ class Renderer:
 
     def __init__(self, terrain: Terrain, sun: Sun, rows: int, cols: int, spp: int = 4,
                  choice: VariantChoice | None = None, clouds: CloudLayer | None = None,
-                 ceiling_m: float | None = None):
+                 ceiling_m: float | None = None, quadrature: bool = True):
         t0 = time.perf_counter()
         self._mi, self._dr, self.choice = load_mitsuba(choice)
         mi = self._mi
         _register_pinhole(mi, self._dr)
         self.rows, self.cols, self.spp = rows, cols, spp
+        self.quadrature = bool(quadrature)
         self.terrain, self.sun, self.clouds = terrain, sun, clouds
         top = float(np.max(terrain.dem_m))
         if clouds is not None:
@@ -193,7 +244,8 @@ class Renderer:
                     "rfilter": {"type": "gaussian"},
                     "pixel_format": "rgb",
                 },
-                "sampler": {"type": "stratified", "sample_count": spp},
+                "sampler": {"type": "stratified", "sample_count": spp,
+                            "jitter": not self.quadrature},
             },
             "terrain": self._terrain_mesh(terrain),
             "sun": {
@@ -277,6 +329,8 @@ class Renderer:
         if kf.ndim != 2 or kf.shape[1] != KEYFRAME_FLOATS or kf.shape[0] < 2:
             raise ValueError(f"keyframes must be (K >= 2, {KEYFRAME_FLOATS}), got {kf.shape}")
         self._sensor.set_keyframes(kf)
+        self._sensor.set_quadrature(quadrature_grid(self.spp) if self.quadrature else None,
+                                    self.rows, self.cols)
         img = self._mi.render(self._scene, seed=int(seed) & 0x7FFFFFFF, spp=self.spp)
         arr = np.asarray(img, dtype=np.float32)
         if arr.ndim == 2:

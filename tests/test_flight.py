@@ -28,18 +28,22 @@ def _session(seed: int, **changes):
 
 
 def test_difference_estimates_independent_errors_on_flat_ground():
-    """Flat ground, the suspended camera, 2 ms exposures: the records' errors are the
-    tracker's own, independent between fragment sets, so sigma_diff / sqrt(2) estimates the
+    """Flat ground, the suspended camera, 2 ms exposures: across track the records' errors are
+    the tracker's own, independent between fragment sets, so sigma_diff / sqrt(2) estimates the
     true error of the frame-to-frame records. With 47 increments a sigma is known to ~10 %
     (1 / sqrt(2 N)), a ratio of two to ~15 %: 0.6 .. 1.5 is a 3-sigma band (seeds 1-6:
-    0.75 .. 1.02). And the tracker works near its bound: an increment is the difference of
-    two shifts, so its true error stays within 1.5 x sqrt(2) x the correlator's predicted
-    error of a frame's mean shift (seeds 1-6: 0.73 .. 1.17 x)."""
+    0.83 .. 1.08). Along track, where the ground flows 2.5 px a frame, both sets see the
+    content at the same sub-pixel phase, and the part of their error that follows the phase
+    (the correlator's and the renderer's fixed pixel quadrature's, as a detector's aliasing
+    would) is shared, so the difference reads low (seeds 1-6: 0.58 .. 0.89 at 4 samples a
+    pixel, 0.60 .. 0.95 at 16): 0.45 .. 1.2. And the tracker works near its bound: an increment
+    is the difference of two shifts, so its true error stays within 1.5 x sqrt(2) x the
+    correlator's predicted error of a frame's mean shift (seeds 1-6: 0.50 .. 1.01 x)."""
     s = _session(3)
     st = s.stats
     assert st["valid_fraction"] == [1.0, 1.0]
     ratio = np.array(st["per_frame"]["ratio"])
-    assert np.all((ratio > 0.6) & (ratio < 1.5)), ratio
+    assert 0.45 < ratio[0] < 1.2 and 0.6 < ratio[1] < 1.5, ratio
     crlb = np.sqrt(2.0) * np.max(st["crlb_px"], axis=0)
     assert np.all(np.array(st["per_frame"]["true_rms"]) < 1.5 * crlb)
     # the two truths agree on flat ground up to the field's second-order rotation terms

@@ -1,8 +1,9 @@
 """Rendering fidelity: rendered motion equals the camera model's predicted image motion.
 
-Tolerances: Monte Carlo noise at spp 16 gives ~0.006 px 1-sigma per 112^2 block (measured
-over 24 blocks: RMS 0.005-0.006 px, bias < 0.004 px), so the mean of 4 blocks is held to
-0.01 px and each block to 0.025 px (4 sigma).
+Tolerances (measured with Monte Carlo pixel integration; the default fixed quadrature is
+quieter, see the floor tests): Monte Carlo noise at spp 16 gives ~0.006 px 1-sigma per
+112^2 block (measured over 24 blocks: RMS 0.005-0.006 px, bias < 0.004 px), so the mean of
+4 blocks is held to 0.01 px and each block to 0.025 px (4 sigma).
 """
 
 from __future__ import annotations
@@ -113,8 +114,12 @@ def test_relief_parallax_of_a_100m_hill_follows_h_v_over_H():
 
 def test_in_render_motion_blur_equals_mean_of_subframes(urban_renderer):
     """One render with the pose moving 3 px across the exposure (9 keyframes) equals the mean
-    of 16 static sub-frame renders (same total samples) within Monte Carlo noise."""
-    terrain, r = urban_renderer
+    of 16 static sub-frame renders (same total samples) within Monte Carlo noise (Monte Carlo
+    pixel integration, whose noise two seeds measure)."""
+    from scene.kernel import Renderer, Sun
+
+    terrain, _ = urban_renderer
+    r = Renderer(terrain, Sun(50.0, 140.0), N, N, spp=16, quadrature=False)
     fp = FocalPlane(10.0, 12e-6, N, N)
     cam = _camera(0.0, fp)
     pose0 = cam.pose(np.array(0.0), nominal=True)
@@ -153,18 +158,14 @@ def test_in_render_motion_blur_equals_mean_of_subframes(urban_renderer):
     assert np.std((static - mean_sub)[inner]) > 5 * expected
 
 
-def test_the_rendered_links_floor_is_monte_carlo_noise_falling_as_one_over_sqrt_spp():
-    """One pose rendered with two sampler seeds, no sensor noise, 16 blocks of 64 px: the
-    blocks' apparent shift is the Monte Carlo pixel integration's own (the floor a rendered
-    tracker's links carry beyond the bound the correlator reports, docs/product.md); at 16
-    samples a pixel it is half the 4-sample one (1 / sqrt(spp), within the 16 blocks'
-    sampling spread), and a half-pixel step of the same pose adds no more than that spread
-    (aliasing is not the floor)."""
+def _floor_renders(quadrature: bool):
+    """(render, rms): one urban pose rendered at a seed, samples a pixel and row step (px),
+    and the RMS error of 16 64-px blocks' shift between two renders about the known step."""
     from scene.kernel import Renderer, Sun
 
     terrain = scene_class("urban", 512.0, 0.4, 2.0, np.random.default_rng(3))
     cam = _camera(0.0, FocalPlane(10.0, 12e-6, N, N))
-    r = Renderer(terrain, Sun(50.0, 140.0), N, N, spp=4)
+    r = Renderer(terrain, Sun(50.0, 140.0), N, N, spp=4, quadrature=quadrature)
     times = np.linspace(0.0, 2e-4, 5)
 
     def render(seed, spp, step=0.0):
@@ -176,19 +177,46 @@ def test_the_rendered_links_floor_is_monte_carlo_noise_falling_as_one_over_sqrt_
     b = 64
     corners = [(i, j) for i in range(0, N, b) for j in range(0, N, b)]
 
-    def rms(a, c, expect=0.0):
+    def rms(a, c, step=0.0):
         s = measure_shift(_blocks(a, corners, b), _blocks(c, corners, b))
         assert s.valid.all()
-        e = s.shift - np.median(s.shift, axis=0)  # about the step, whatever its sign
-        assert np.abs(np.abs(np.median(s.shift[:, 0])) - expect) < 0.01
+        # a stage step of +d px moves the content by -d px
+        e = s.shift - np.array([-step, 0.0])
         return float(np.sqrt(np.mean(e ** 2)))
 
+    return render, rms
+
+
+def test_the_monte_carlo_floor_falls_as_one_over_sqrt_spp():
+    """Monte Carlo pixel integration (``quadrature=False``): one pose rendered with two sampler
+    seeds, no sensor noise, 16 blocks of 64 px: the blocks' apparent shift is the Monte Carlo
+    noise's own; at 16 samples a pixel it is half the 4-sample one (1 / sqrt(spp), within the
+    16 blocks' sampling spread), and a half-pixel step of the same pose adds no more than that
+    spread (aliasing is not the floor)."""
+    render, rms = _floor_renders(quadrature=False)
     f4 = rms(render(1, 4), render(2, 4))
     f16 = rms(render(1, 16), render(2, 16))
     half = rms(render(1, 4), render(2, 4, 0.5), 0.5)
-    assert f4 > 0.002  # a floor worth modelling at the tracker's 0.01 px bound
+    assert f4 > 0.01  # a floor worth modelling at the tracker's 0.01 px bound
     assert 1.3 < f4 / f16 < 3.0  # 2 expected
     assert half < 1.4 * f4  # a sub-pixel phase change adds no aliasing floor of its size
+
+
+def test_the_fixed_quadrature_has_no_seed_noise_and_a_smaller_phase_error():
+    """The default fixed quadrature: two seeds of one pose agree to a twentieth of the Monte
+    Carlo floor (only the sky's BSDF samples still vary), and what is left of a link's floor,
+    the quadrature's dependence on the content's sub-pixel phase (a half-pixel step), is below
+    the Monte Carlo floor at the same samples a pixel and falls as the grid refines (2x2 to
+    4x4 cells: measured 0.012 -> 0.006 px, Monte Carlo 0.025 -> 0.010)."""
+    render, rms = _floor_renders(quadrature=True)
+    render_mc, rms_mc = _floor_renders(quadrature=False)
+    mc4 = rms_mc(render_mc(1, 4), render_mc(2, 4))
+    same = rms(render(1, 4), render(2, 4))
+    half4 = rms(render(1, 4), render(2, 4, 0.5), 0.5)
+    half16 = rms(render(1, 16), render(2, 16, 0.5), 0.5)
+    assert same < 0.05 * mc4
+    assert half4 < 0.75 * mc4
+    assert half16 < 0.7 * half4
 
 
 def test_a_rendered_run_names_scene_spp_when_its_floor_rivals_the_bound(monkeypatch):
@@ -200,7 +228,7 @@ def test_a_rendered_run_names_scene_spp_when_its_floor_rivals_the_bound(monkeypa
 
     from imc.wiring import rendered_plant as rp
 
-    m = SimpleNamespace(scenario=SimpleNamespace(scene=SimpleNamespace(spp=4)))
+    m = SimpleNamespace(scenario=SimpleNamespace(scene=SimpleNamespace(spp=4, quadrature=True)))
     crlb = np.array([0.010, 0.012])
     monkeypatch.setattr(rp, "render_floor_px", lambda m, plant=None: np.array([0.004, 0.0096]))
     info, line = rp.render_floor_check(m, None, crlb)

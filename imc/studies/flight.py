@@ -139,6 +139,7 @@ def record_frames(m: Models, n_frames: int | None = None, log: Log | None = None
     ceiling = float(np.min(m.camera.pose(m.frame_t_s[:n]).position_m[:, 2]))
     t0 = time.perf_counter()
     r = Renderer(m.terrain, Sun(*m.sun_deg), fp.rows, fp.cols, spp=m.scenario.scene.spp,
+                 quadrature=m.scenario.scene.quadrature,
                  clouds=m.clouds, ceiling_m=ceiling)
     frames = np.zeros((len(cams), n, fp.rows, fp.cols), np.uint16)
     n_kf = keyframes_per_exposure(m)

@@ -50,6 +50,9 @@ class Table2Config:
     noise_sigma: float = 10.0
     success_px: float = 0.5
     spp: int = 16
+    #: Monte Carlo pixel sampling, as the texture map (:class:`imc.studies.texture_map.
+    #: TextureMapConfig`): the pairs are renders at random sub-pixel phases
+    quadrature: bool = False
     n_phases: int = 4
     texel_m: float = 0.4
     dem_spacing_m: float = 2.0
@@ -91,7 +94,8 @@ def run_class(kind: str, cfg: Table2Config, seed: int,
         base = float(terrain.dem_m.max()) + 1000.0
         clouds = cloud_layer(size + 4 * base, cloud_cell_m(size + 4 * base, 2.0), 0.2, base,
                              rng)
-    r = Renderer(terrain, Sun(*cfg.sun_deg), canvas, canvas, spp=cfg.spp, clouds=clouds)
+    r = Renderer(terrain, Sun(*cfg.sun_deg), canvas, canvas, spp=cfg.spp, clouds=clouds,
+                 quadrature=cfg.quadrature)
     phases = np.vstack([[0.0, 0.0], rng.uniform(0.0, 1.0, size=(cfg.n_phases, 2))])
     renders = [r.render(ray_keyframes(pose, fp, tuple(ph), r.z_start_m), seed=seed * 100 + k)
                for k, ph in enumerate(phases)]

@@ -80,6 +80,12 @@ class TextureMapConfig:
         ("bandlimited", "bandlimited", (40.0, 255.0)), ("box", "box", (40.0, 255.0)),
         ("bandlimited_0_255", "bandlimited", (0.0, 255.0)))
     spp: int = 4
+    #: Monte Carlo pixel sampling (not the renderer's default fixed quadrature): each trial
+    #: moves the fine render by its own sub-pixel phase, where a fixed quadrature's
+    #: phase-dependent error would be a per-trial error the 3 x 3 resampling does not
+    #: average (measured 1.41x the predicted error on a GeoTIFF block against <= 1.3x),
+    #: while Monte Carlo noise is averaged by it
+    quadrature: bool = False
     height_m: float = 2400.0
     focal_length_m: float = 0.110
     sun_deg: tuple[float, float] = (50.0, 140.0)
@@ -197,7 +203,8 @@ class SceneRenderer:
                                   FocalPlane(cfg.focal_length_m, self.pitch_m, n, n))
         self.pose = self.camera.pose(np.array([0.0, 0.0]), nominal=True)
         self.renderer = Renderer(terrain, Sun(*cfg.sun_deg), n, n, spp=cfg.spp,
-                                 ceiling_m=float(self.pose.position_m[0, 2]))
+                                 ceiling_m=float(self.pose.position_m[0, 2]),
+                                 quadrature=cfg.quadrature)
         self.render_s = 0.0
 
     def block_centre_px(self, i: int, j: int) -> tuple[float, float]:
@@ -229,7 +236,7 @@ class SceneRenderer:
         n = c.grid * c.block_px
         fp = FocalPlane(c.focal_length_m, self.pitch_m * c.factor, n, n)
         r = Renderer(self.terrain, Sun(*c.sun_deg), n, n, spp=c.spp,
-                     ceiling_m=float(self.pose.position_m[0, 2]))
+                     ceiling_m=float(self.pose.position_m[0, 2]), quadrature=c.quadrature)
         return r.render(ray_keyframes(self.pose, fp, (0.0, 0.0), r.z_start_m), 1)
 
 

@@ -1,0 +1,82 @@
+"""Every link of no_stage.yaml's record against the truth, per baseline (issue 32's diagnosis).
+
+One loop of ``no_stage.yaml`` (rendered ~3 min, texture ~2 min, analytic < 1 min), its links
+measured as the ground measures them (:func:`imc.wiring.links.measure_links`), each link's
+error against the truth's jitter increment (the camera model's jitter averaged over each
+tracker exposure), per baseline: mean (with its standard error), scatter, the predicted
+error, the RMS of error / predicted error, and the error's slope on the true increment (a
+gain error); then the baseline-1 links' lag correlation and the chain of baseline-1 links
+integrated. Measured here, never asserted in tests.
+
+    python benchmarks/bench_link_errors.py [--fidelity rendered|texture|analytic] [--seed S]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+from bench_restitution import _run, _scenario
+
+from imc.wiring.truth import jitter_px
+
+
+def link_errors(fidelity: str, seed: int | None) -> dict:
+    """The per-baseline figures of one loop (see the module docstring)."""
+    d = _scenario()
+    d["plant"] = {"fidelity": fidelity}
+    if seed is not None:
+        d["seed"] = int(seed)
+    m, _, _, links = _run(d, fidelity == "analytic", fidelity == "analytic")
+    sub = (np.arange(8) + 0.5) / 8.0 * m.exposure_s
+    t = (m.frame_t_s[:, None] + sub[None]).ravel()
+    jit = jitter_px(m, t).reshape(len(m.frame_t_s), len(sub), 2).mean(axis=1)
+    a, b = links.a.astype(int), links.b.astype(int)
+    true = jit[b] - jit[a]
+    ok = links.valid & np.all(np.isfinite(links.d_px), axis=1)
+    err = links.d_px - true
+    out: dict = {"fidelity": fidelity, "seed": seed, "efficiency": links.efficiency.tolist(),
+                 "baselines": []}
+    for k in np.unique(links.baseline):
+        s = ok & (links.baseline == k)
+        if s.sum() < 3:
+            continue
+        e, tk, sg = err[s], true[s], links.sigma_px[s]
+        out["baselines"].append({
+            "k": int(k), "links": int(s.sum()), "mean_px": e.mean(0).tolist(),
+            "mean_se_px": (e.std(0) / np.sqrt(s.sum())).tolist(), "std_px": e.std(0).tolist(),
+            "predicted_px": np.sqrt(np.mean(sg ** 2, axis=0)).tolist(),
+            "z_rms": np.sqrt(np.mean((e / sg) ** 2, axis=0)).tolist(),
+            "gain_slope": [float(np.polyfit(tk[:, i], e[:, i], 1)[0]) for i in range(2)],
+            "true_increment_std_px": tk.std(0).tolist()})
+    s = ok & (links.baseline == 1)
+    e1 = err[s][np.argsort(links.a[s])]
+    out["lag_correlation"] = {lag: [float(np.corrcoef(e1[:-lag, i], e1[lag:, i])[0, 1])
+                                    for i in range(2)] for lag in (1, 2, 3, 5, 10)}
+    chain = np.cumsum(e1, axis=0)
+    out["chain_drift_after_constant_px"] = np.sqrt(np.mean(
+        (chain - chain.mean(0)) ** 2, axis=0)).tolist()
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--fidelity", choices=("rendered", "texture", "analytic"),
+                    default="rendered")
+    ap.add_argument("--seed", type=int, default=None)
+    a = ap.parse_args()
+    r = link_errors(a.fidelity, a.seed)
+    for row in r["baselines"]:
+        print(f"k={row['k']} links {row['links']}: mean "
+              f"{row['mean_px'][0]:+.5f} / {row['mean_px'][1]:+.5f} px (se "
+              f"{row['mean_se_px'][0]:.5f} / {row['mean_se_px'][1]:.5f}), std "
+              f"{row['std_px'][0]:.4f} / {row['std_px'][1]:.4f}, predicted "
+              f"{row['predicted_px'][0]:.4f} / {row['predicted_px'][1]:.4f}, z-rms "
+              f"{row['z_rms'][0]:.2f} / {row['z_rms'][1]:.2f}, gain slope "
+              f"{row['gain_slope'][0]:+.3f} / {row['gain_slope'][1]:+.3f}")
+    print(json.dumps({k: v for k, v in r.items() if k != "baselines"}))
+
+
+if __name__ == "__main__":
+    main()

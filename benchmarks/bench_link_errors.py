@@ -6,7 +6,10 @@ error against the truth's jitter increment (the camera model's jitter averaged o
 tracker exposure), per baseline: mean (with its standard error), scatter, the predicted
 error, the RMS of error / predicted error, and the error's slope on the true increment (a
 gain error); then the baseline-1 links' lag correlation and the chain of baseline-1 links
-integrated. Measured here, never asserted in tests.
+integrated; and the network's covariance (the frames' shared noise with the ground's REML
+split, as :func:`imc.wiring.restitution.restitute` builds it) against the links' true errors:
+the whitened RMS and the spread of sums of W consecutive baseline-1 links, measured over
+predicted. Measured here, never asserted in tests.
 
     python benchmarks/bench_link_errors.py [--fidelity rendered|texture|analytic] [--seed S]
 """
@@ -19,6 +22,7 @@ import json
 import numpy as np
 from bench_restitution import _run, _scenario
 
+from ground.network import estimate_independent_fraction, with_independent_fraction
 from imc.wiring.truth import jitter_px
 
 
@@ -57,6 +61,37 @@ def link_errors(fidelity: str, seed: int | None) -> dict:
     chain = np.cumsum(e1, axis=0)
     out["chain_drift_after_constant_px"] = np.sqrt(np.mean(
         (chain - chain.mean(0)) ** 2, axis=0)).tolist()
+    if links.regions is not None:
+        out["covariance"] = covariance_check(m, links, jit)
+    return out
+
+
+def covariance_check(m, links, jit: np.ndarray, windows=(1, 5, 20, 80)) -> dict:
+    """The network's link covariance against the links' true errors, per axis: the RMS of the
+    errors whitened by it (1 if it holds) and, for sums of W consecutive baseline-1 links,
+    the measured spread over the predicted."""
+    net = links.network(m.frame_mid_s, int(links.baseline.max()))
+    f = estimate_independent_fraction(net, len(m.frame_mid_s))
+    net = with_independent_fraction(net, f)
+    idx = np.flatnonzero(net.valid)
+    a, b = net.a[idx].astype(int), net.b[idx].astype(int)
+    err = net.d_px[idx] - (jit[b] - jit[a])
+    shared = net.shared.covariance(idx)
+    k1 = np.flatnonzero(b - a == 1)
+    k1 = k1[np.argsort(a[k1])]
+    out: dict = {"independent_fraction": f.tolist(), "whitened_rms": [], "windows": {}}
+    for ax in range(2):
+        cov = shared[ax].toarray() + np.diag(net.sigma_px[idx, ax] ** 2)
+        z = np.linalg.solve(np.linalg.cholesky(cov), err[:, ax])
+        out["whitened_rms"].append(float(np.sqrt(np.mean(z ** 2))))
+        for w in windows:
+            pv, mv = [], []
+            for s0 in range(0, len(k1) - w + 1, w):
+                sel = k1[s0:s0 + w]
+                pv.append(cov[np.ix_(sel, sel)].sum())
+                mv.append(err[sel, ax].sum() ** 2)
+            out["windows"].setdefault(str(w), []).append(float(np.sqrt(np.mean(mv)
+                                                                       / np.mean(pv))))
     return out
 
 

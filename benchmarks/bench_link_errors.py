@@ -23,7 +23,7 @@ import numpy as np
 from bench_restitution import _run, _scenario
 
 from ground.network import estimate_independent_fraction, with_independent_fraction
-from imc.wiring.truth import jitter_px
+from imc.wiring.product import exposure_jitter
 
 
 def link_errors(fidelity: str, seed: int | None) -> dict:
@@ -33,9 +33,7 @@ def link_errors(fidelity: str, seed: int | None) -> dict:
     if seed is not None:
         d["seed"] = int(seed)
     m, _, _, links = _run(d, fidelity == "analytic", fidelity == "analytic")
-    sub = (np.arange(8) + 0.5) / 8.0 * m.exposure_s
-    t = (m.frame_t_s[:, None] + sub[None]).ravel()
-    jit = jitter_px(m, t).reshape(len(m.frame_t_s), len(sub), 2).mean(axis=1)
+    jit = exposure_jitter(m)
     a, b = links.a.astype(int), links.b.astype(int)
     true = jit[b] - jit[a]
     ok = links.valid & np.all(np.isfinite(links.d_px), axis=1)

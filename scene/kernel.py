@@ -114,7 +114,8 @@ def _register_pinhole(mi: Any, dr: Any) -> None:
         def set_quadrature(self, grid: int | None, rows: int, cols: int) -> None:
             """Pair each sub-pixel cell of a ``grid`` x ``grid`` stratification with its own
             exposure-time stratum (None: the sampler's own, per-pixel random pairing)."""
-            self.quadrature = None if grid is None else (int(grid), int(rows), int(cols))
+            self.quadrature = None if grid is None else (
+                int(grid), int(rows), int(cols), quadrature_multiplier(int(grid)))
 
         def set_keyframes(self, kf: np.ndarray) -> None:
             kf = np.asarray(kf, dtype=np.float64)
@@ -164,9 +165,8 @@ def _register_pinhole(mi: Any, dr: Any) -> None:
             """The exposure instant of a sample: its sub-pixel cell (i, j) of the g x g grid
             takes time stratum (i g + j) h mod g^2 (h coprime with g^2, near g^2 / golden
             ratio: the strata not ordered with row), at the sampler's offset in its stratum."""
-            g, rows, cols = self.quadrature
+            g, rows, cols, h = self.quadrature
             n2 = g * g
-            h = quadrature_multiplier(g)
             fx = position_sample.x * cols
             fy = position_sample.y * rows
             j = dr.minimum(mi.Int32(dr.floor((fx - dr.floor(fx)) * g)), g - 1)

@@ -383,16 +383,20 @@ def record_jitter(m: Models, res):
     return MotionRecord(m.frame_mid_s, jit, valid)
 
 
-def perfect_jitter(m: Models, record):
-    """The record a perfect tracker would have delivered: the truth's jitter
-    (:func:`imc.wiring.truth.jitter_px`) averaged over each tracker exposure, at the record's
-    sample times (its gaps kept)."""
-    from ground.record import MotionRecord
-
+def exposure_jitter(m: Models) -> np.ndarray:
+    """The truth's jitter (:func:`imc.wiring.truth.jitter_px`) averaged over each tracker
+    exposure, (T, 2) px: what a perfect tracker measures of frame k."""
     sub = (np.arange(8) + 0.5) / 8.0 * m.exposure_s
     t = (m.frame_t_s[:, None] + sub[None]).ravel()
-    j = jitter_px(m, t).reshape(len(m.frame_t_s), len(sub), 2).mean(axis=1)
-    return MotionRecord(m.frame_mid_s, j, record.valid)
+    return jitter_px(m, t).reshape(len(m.frame_t_s), len(sub), 2).mean(axis=1)
+
+
+def perfect_jitter(m: Models, record):
+    """The record a perfect tracker would have delivered: :func:`exposure_jitter` at the
+    record's sample times (its gaps kept)."""
+    from ground.record import MotionRecord
+
+    return MotionRecord(m.frame_mid_s, exposure_jitter(m), record.valid)
 
 
 def line_offsets(plan: ProductPlan, record, stage) -> np.ndarray:

@@ -432,8 +432,8 @@ def render_floor_px(m: Models, seeds: int = 3, frame: int = 0,
     'render' stream past any frame's) and its own sub-pixel focal-plane offset
     (:data:`FLOOR_OFFSETS_PX`), at the scene's samples a pixel and without the sensor's noise;
     every pair correlated by the default digital correlator on a grid of non-overlapping
-    blocks, its error taken about the
-    offsets' known difference; the RMS over blocks and pairs. The content is the same, so the
+    blocks, its error taken about the offsets' known difference; the RMS over blocks and
+    pairs. The content is the same, so the
     error is what the renderer's pixel integration adds to a link: its Monte Carlo noise
     (falling as 1 / sqrt(samples a pixel); none with the default fixed quadrature) and the
     quadrature's dependence on the content's sub-pixel phase (with the scene's own aliasing,

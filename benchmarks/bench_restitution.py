@@ -47,21 +47,34 @@ def _scenario(**product) -> dict:
     return d
 
 
-def _run(d: dict, floor: bool = False, efficiency: bool = False):
+def _run(d: dict, floor: bool = False, efficiency: bool = False,
+         rendered_sigma: bool = False):
     """(models, plant, loop result, links) of one scenario; ``floor``: an analytic plant
     whose links also carry the rendered tracker's Monte Carlo floor
     (:func:`imc.wiring.rendered_plant.render_floor_px`, measured on this scene), and with
     ``efficiency`` its bound's part drawn at the correlator's efficiency on the scene
-    (:func:`scene_efficiency`)."""
+    (:func:`scene_efficiency`); ``rendered_sigma``: its bound and that efficiency from frame 0
+    as the renderer draws it (:func:`imc.wiring.rendered_plant.render_pose`), not the
+    flat-shaded albedo."""
     m = build_models(parse_scenario(d))
     if floor and m.scenario.plant.fidelity == "analytic":
-        from imc.wiring.rendered_plant import analytic_plant, predicted_sigma_px, render_floor_px
+        from imc.wiring.rendered_plant import (
+            analytic_plant,
+            correlator_efficiency,
+            predicted_sigma_px,
+            render_floor_px,
+            rendered_noise,
+        )
 
-        f0 = render_floor_px(m)
-        eff = np.array(scene_efficiency(m)["over_crlb"]) if efficiency else np.ones(2)
-        print(json.dumps({"render_floor_px": f0.tolist(), "efficiency": eff.tolist()}),
-              flush=True)
-        plant = analytic_plant(m, predicted_sigma_px(m), floor_px=f0, efficiency=eff)
+        if rendered_sigma:  # frame 0 as the renderer draws it: plant.noise 'rendered'
+            noise = rendered_noise(m)
+        else:
+            noise = {"sigma_px": predicted_sigma_px(m), "floor_px": render_floor_px(m),
+                     "efficiency": np.asarray(correlator_efficiency(m)["over_crlb"])}
+        if not efficiency:
+            noise["efficiency"] = np.ones(2)
+        print(json.dumps({k: np.asarray(v).tolist() for k, v in noise.items()}), flush=True)
+        plant = analytic_plant(m, **noise)
     else:
         plant = build_plant(m)
     sigma = float(np.mean(plant.sigma_px)) if hasattr(plant, "sigma_px") else None
@@ -216,38 +229,17 @@ def correlator_efficiency(pairs: int = 150, seed: int = 32) -> dict:
     return out
 
 
-def scene_efficiency(m=None, draws: int = 24) -> dict:
-    """The correlator's error against its bound on no_stage.yaml's own texture as the
-    analytic plant sees it (frame 0's flat-shaded albedo through the optics,
-    :func:`imc.wiring.rendered_plant.base_image`, as ``predicted_sigma_px`` exposes it):
-    ``draws`` pairs of independent sensor-noise draws (the 'texture' stream's members past
-    the two the bound uses), 16 blocks of 64 px, true shift 0: RMS error / RMS bound."""
-    from correlator.tracker import BlockTracker, extract_blocks
-    from imc.wiring import streams
-    from imc.wiring.rendered_plant import base_image, expose_frame
+def scene_efficiency(m=None, draws: int = 24, radiance: np.ndarray | None = None) -> dict:
+    """The correlator's error against its bound on no_stage.yaml's own texture
+    (:func:`imc.wiring.rendered_plant.correlator_efficiency`: the flat-shaded albedo, or
+    ``radiance``, e.g. a rendered frame 0)."""
+    from imc.wiring.rendered_plant import correlator_efficiency
 
     if m is None:
         d = _scenario()
         d["plant"] = {"fidelity": "analytic"}
         m = build_models(parse_scenario(d))
-    rad = base_image(m, 0)
-    gain = m.sensor.gain_for(m.optics.apply(rad))
-    fp, bp = m.camera.focal_plane, m.scenario.correlator.block_px
-    corners = np.stack(np.meshgrid(np.arange(0, fp.rows - bp + 1, bp),
-                                   np.arange(0, fp.cols - bp + 1, bp), indexing="ij"),
-                       axis=-1).reshape(-1, 2)
-    err, crlb = [], []
-    for i in range(draws):
-        a = expose_frame(m, rad, gain, streams.rng(m.scenario.seed, "texture", 2 + 2 * i))
-        b = expose_frame(m, rad, gain, streams.rng(m.scenario.seed, "texture", 3 + 2 * i))
-        res = BlockTracker(a, corners, bp, m.correlator).correlator.measure(
-            extract_blocks(b, corners, bp))
-        err.append(np.where(res.valid[:, None], res.shift, np.nan))
-        crlb.append(np.where(res.valid[:, None], res.crlb, np.nan))
-    e, c = np.concatenate(err), np.concatenate(crlb)
-    rms, bound = np.sqrt(np.nanmean(e ** 2, axis=0)), np.sqrt(np.nanmean(c ** 2, axis=0))
-    return {"blocks": int(np.isfinite(e[:, 0]).sum()), "rms_px": rms.tolist(),
-            "crlb_px": bound.tolist(), "over_crlb": (rms / bound).tolist()}
+    return correlator_efficiency(m, radiance, draws)
 
 
 def solve_timing(frames: tuple[int, ...] = (331, 2000), k_max: int = 4) -> dict:
@@ -310,6 +302,9 @@ def main() -> None:
                     "bound's part drawn at the correlator's efficiency on the scene")
     ap.add_argument("--lengths", action="store_true", help="only the geometry at the three "
                     "strip lengths")
+    ap.add_argument("--rendered-sigma", action="store_true", help="with --render-floor: "
+                    "the analytic plant's bound (and --scene-eff's efficiency) from frame 0 as "
+                    "the renderer draws it, not the flat-shaded albedo")
     ap.add_argument("--render-floor", action="store_true", help="the analytic plant's "
                     "links with the rendered tracker's Monte Carlo floor measured on the scene")
     ap.add_argument("--timing", action="store_true", help="only the network solve's time "
@@ -345,7 +340,7 @@ def main() -> None:
         if a.seed is not None:
             d["seed"] = int(a.seed)
         m, plant, res, links = (_from_run(d, a.run, a.links) if fid == "rendered" and a.run
-                                else _run(d, a.render_floor, a.scene_eff))
+                                else _run(d, a.render_floor, a.scene_eff, a.rendered_sigma))
         r = {"loop_s": time.perf_counter() - t0,
              "efficiency": links.efficiency.tolist(), "links": int(links.valid.sum())}
         if fid == "rendered":
@@ -376,7 +371,8 @@ def main() -> None:
         print(json.dumps({fid: r}, indent=1), flush=True)
     Path(a.out).mkdir(parents=True, exist_ok=True)
     tag = ("_" + a.fidelity if a.fidelity else "") + ("_floor" if a.render_floor else "") \
-        + ("_eff" if a.scene_eff else "") + (f"_seed{a.seed}" if a.seed is not None else "")
+        + ("_eff" if a.scene_eff else "") + ("_rsig" if a.rendered_sigma else "") \
+        + (f"_seed{a.seed}" if a.seed is not None else "")
     write_json(Path(a.out) / f"restitution{tag}.json", out)
 
 

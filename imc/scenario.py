@@ -874,6 +874,12 @@ class PlantConfig(_Model):
     sigma_px: float | None = Field(None, gt=0.0, description="analytic: 1-sigma noise of "
                                    "each block's shift, px (default: the correlator's "
                                    "predicted error on the scene's texture)")
+    noise: Literal["albedo", "rendered"] = Field(
+        "albedo", description="analytic, without sigma_px: the scene the noise is predicted "
+        "on. 'albedo': the flat-shaded albedo (no renderer: fast). 'rendered': frame 0 "
+        "rendered once (shading and sky), with the renderer's pixel-integration floor and "
+        "the correlator's efficiency on it: the rendered tracker's noise (docs/product.md, "
+        "issue 32: the record's drift within 1.5x of the rendered tracker's)")
 
 
 class GyroConfig(_Model):

@@ -239,3 +239,45 @@ def test_a_rendered_run_names_scene_spp_when_its_floor_rivals_the_bound(monkeypa
     assert np.allclose(info["over_crlb"], [0.4, 0.8]) and info["spp"] == 4
     monkeypatch.setattr(rp, "render_floor_px", lambda m, plant=None: np.array([0.004, 0.0048]))
     assert rp.render_floor_check(m, None, crlb)[1] is None
+
+
+def test_the_analytic_plants_rendered_noise_is_the_rendered_trackers_bound():
+    """``plant.noise: rendered``: the analytic plant's noise predicted on frame 0 as the
+    renderer draws it, with the correlator's efficiency on it and the renderer's floor
+    (:func:`imc.wiring.rendered_plant.rendered_noise`). On the quickstart's scene (15 m of
+    relief under a 50 deg sun) the shading is texture of its own: the bound on the rendered
+    frame is 0.60-0.77x the flat-shaded albedo's (measured). It is the bound that the rendered
+    tracker itself reports over its first 20 frames, to within 10 %; the albedo's is 1.3x
+    off. The floor is the renderer's own (measured 0.26-0.32x the bound), and the efficiency
+    is the correlator's (measured 1.00 / 1.05)."""
+    import yaml
+    from conftest import ROOT
+
+    from compensation.loop import simulate
+    from imc.scenario import parse_scenario
+    from imc.wiring.build import build_loop, build_models
+    from imc.wiring.rendered_plant import build_plant, predicted_sigma_px
+
+    d = yaml.safe_load((ROOT / "scenarios" / "quickstart.yaml").read_text())
+    d.pop("expect", None)
+    d.update(duration_s=0.2, plant={"fidelity": "analytic", "noise": "rendered"})
+    m = build_models(parse_scenario(d))
+    plant = build_plant(m)
+    albedo = np.sqrt(np.mean(predicted_sigma_px(m) ** 2, axis=0))
+    ours = np.sqrt(np.mean(plant.sigma_px ** 2, axis=0))
+    d["plant"] = {"fidelity": "rendered"}
+    mr = build_models(parse_scenario(d))
+    rendered = build_plant(mr)
+    try:
+        parts = build_loop(mr, None, None)
+        res = simulate(rendered, parts.estimator, parts.controller, parts.actuator,
+                       parts.transport, parts.timeline, enabled=True)
+    finally:
+        rendered.close()
+    rec = res.record
+    reported = np.sqrt(np.nanmean(np.where(rec.valid[1:, :, None], rec.sigma_px[1:], np.nan)
+                                  ** 2, axis=(0, 1)))
+    assert np.all(np.abs(ours / reported - 1.0) < 0.10)
+    assert np.all(albedo / reported > 1.2)  # the flat shading misses the relief's texture
+    assert np.all(plant.floor_px > 0.1 * ours) and np.all(plant.floor_px < 0.5 * ours)
+    assert np.all((plant.efficiency > 0.9) & (plant.efficiency < 1.5))

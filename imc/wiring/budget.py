@@ -228,7 +228,9 @@ def estimate_run(sc: Scenario) -> RunEstimate:
     parts["clouds"] = cells * CLOUD_BYTES_PER_CELL
     parts["jitter"] = 4 * 8.0 * JITTER_CHUNK * _jitter_components(sc)
     parts["record"] = frames * (RECORD_BYTES_PER_FRAME + RECORD_BYTES_PER_FRAME_BLOCK * c.n_blocks)
-    base = RENDER_BASE_BYTES if fidelity == "rendered" else BASE_BYTES
+    renders = fidelity == "rendered" or (fidelity == "analytic" and sc.plant.noise == "rendered"
+                                         and sc.plant.sigma_px is None)
+    base = RENDER_BASE_BYTES if renders else BASE_BYTES
     parts["truth"] = _truth_samples(sc) * TRUTH_BYTES_PER_SAMPLE
     if fidelity != "analytic":
         parts["frames"] = 2.0 * frames * px  # uint16 frames kept for re-referencing

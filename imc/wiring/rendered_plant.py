@@ -425,6 +425,33 @@ def predicted_sigma_px(m: Models, fill: bool = True,
 FLOOR_OFFSETS_PX = ((0.0, 0.0), (0.5, 0.25), (0.25, 0.5))
 
 
+def render_pose(m: Models, frame: int = 0, offsets_px=((0.0, 0.0),),
+                plant: RenderedPlant | None = None) -> np.ndarray:
+    """Frame ``frame``'s pose rendered once per focal-plane offset ``offsets_px`` (n, 2) px
+    (the stage held there over the exposure): the radiance (n, rows, cols) before the optics
+    and the sensor, each render with its own sampler seed (members of the 'render' stream
+    past any frame's). The scene as the rendered tracker sees it, shading and sky included
+    (the analytic plant's :func:`predicted_sigma_px` takes it as ``radiance``). ``plant``: a
+    run's plant, whose renderer is reused (and left open); None: one is built and closed."""
+    from scene.pinhole import ray_keyframes
+
+    offsets = np.atleast_2d(np.asarray(offsets_px, dtype=np.float64))
+    own = plant is None
+    if own:
+        plant = RenderedPlant(m)
+    fp = m.camera.focal_plane
+    t0 = float(m.frame_t_s[frame])
+    poses = m.camera.pose(t0 + np.linspace(0.0, m.exposure_s, KEYFRAMES))
+    n = len(m.frame_t_s)
+    try:
+        return np.stack([plant.renderer.render(
+            ray_keyframes(poses, fp, offsets[i], plant.renderer.z_start_m),
+            streams.render_seed(m.scenario.seed, n + i)) for i in range(len(offsets))])
+    finally:
+        if own:
+            plant.close()
+
+
 def render_floor_px(m: Models, seeds: int = 3, frame: int = 0,
                     plant: RenderedPlant | None = None) -> np.ndarray:
     """The rendered tracker's pixel-integration floor (2,) px (row, col): frame ``frame``'s
@@ -442,26 +469,11 @@ def render_floor_px(m: Models, seeds: int = 3, frame: int = 0,
     plant, whose renderer is reused (and left open); None: one is built and closed."""
     from itertools import combinations
 
-    from scene.pinhole import ray_keyframes
-
     if not 2 <= seeds <= len(FLOOR_OFFSETS_PX):
         raise ValueError(f"seeds must be 2 .. {len(FLOOR_OFFSETS_PX)}, got {seeds}")
-    own = plant is None
-    if own:
-        plant = RenderedPlant(m)
-    fp, bp = m.camera.focal_plane, m.scenario.correlator.block_px
-    t0 = float(m.frame_t_s[frame])
-    times = t0 + np.linspace(0.0, m.exposure_s, KEYFRAMES)
-    poses = m.camera.pose(times)
     offsets = np.asarray(FLOOR_OFFSETS_PX[:seeds], dtype=np.float64)
-    n = len(m.frame_t_s)
-    try:
-        imgs = [m.optics.apply(plant.renderer.render(
-            ray_keyframes(poses, fp, offsets[i], plant.renderer.z_start_m),
-            streams.render_seed(m.scenario.seed, n + i))) for i in range(seeds)]
-    finally:
-        if own:
-            plant.close()
+    imgs = [m.optics.apply(r) for r in render_pose(m, frame, offsets, plant)]
+    fp, bp = m.camera.focal_plane, m.scenario.correlator.block_px
     corners = np.stack(np.meshgrid(np.arange(0, fp.rows - bp + 1, bp),
                                    np.arange(0, fp.cols - bp + 1, bp), indexing="ij"),
                        axis=-1).reshape(-1, 2)
@@ -562,14 +574,62 @@ def analytic_plant(m: Models, sigma_px, floor_px=0.0, efficiency=1.0) -> Analyti
                          efficiency=efficiency)
 
 
+def correlator_efficiency(m: Models, radiance: np.ndarray | None = None,
+                          draws: int = 24) -> dict:
+    """The correlator's error against its own bound on this scene: frame 0's content (the
+    flat-shaded albedo, :func:`base_image`, or ``radiance``, e.g. :func:`render_pose`'s)
+    exposed in ``draws`` pairs of independent sensor-noise draws (the 'texture' stream's
+    members past the two :func:`predicted_sigma_px` uses), every block of a grid of
+    non-overlapping blocks of the scenario's size, true shift 0. Returns ``over_crlb`` (2,)
+    (RMS error / RMS bound per axis, what :func:`analytic_plant` takes as ``efficiency``),
+    ``rms_px``, ``crlb_px`` and the valid ``blocks``."""
+    rad = base_image(m, 0) if radiance is None else radiance
+    gain = m.sensor.gain_for(m.optics.apply(rad))
+    fp, bp = m.camera.focal_plane, m.scenario.correlator.block_px
+    corners = np.stack(np.meshgrid(np.arange(0, fp.rows - bp + 1, bp),
+                                   np.arange(0, fp.cols - bp + 1, bp), indexing="ij"),
+                       axis=-1).reshape(-1, 2)
+    err, crlb = [], []
+    for i in range(draws):
+        a = expose_frame(m, rad, gain, streams.rng(m.scenario.seed, "texture", 2 + 2 * i))
+        b = expose_frame(m, rad, gain, streams.rng(m.scenario.seed, "texture", 3 + 2 * i))
+        res = BlockTracker(a, corners, bp, m.correlator).correlator.measure(
+            extract_blocks(b, corners, bp))
+        err.append(np.where(res.valid[:, None], res.shift, np.nan))
+        crlb.append(np.where(res.valid[:, None], res.crlb, np.nan))
+    e, c = np.concatenate(err), np.concatenate(crlb)
+    rms, bound = np.sqrt(np.nanmean(e ** 2, axis=0)), np.sqrt(np.nanmean(c ** 2, axis=0))
+    return {"blocks": int(np.isfinite(e[:, 0]).sum()), "rms_px": rms.tolist(),
+            "crlb_px": bound.tolist(), "over_crlb": (rms / bound).tolist()}
+
+
+def rendered_noise(m: Models) -> dict:
+    """The analytic plant's noise as the rendered tracker has it (``plant.noise:
+    rendered``): frame 0 rendered once (:func:`render_pose`), the correlator's bound on it
+    (``sigma_px`` (B, 2), :func:`predicted_sigma_px`), its efficiency there (``efficiency``
+    (2,), :func:`correlator_efficiency`) and the renderer's floor (``floor_px`` (2,),
+    :func:`render_floor_px`), one renderer for all: :func:`analytic_plant`'s arguments."""
+    renderer = RenderedPlant(m)
+    try:
+        rad = render_pose(m, plant=renderer)[0]
+        floor = render_floor_px(m, plant=renderer)
+    finally:
+        renderer.close()
+    return {"sigma_px": predicted_sigma_px(m, radiance=rad), "floor_px": floor,
+            "efficiency": np.asarray(correlator_efficiency(m, rad)["over_crlb"])}
+
+
 def build_plant(m: Models):
-    """The plant of the scenario's ``plant.fidelity``."""
+    """The plant of the scenario's ``plant.fidelity``; an analytic one's noise from
+    ``plant.sigma_px``, else predicted on the scene of ``plant.noise``."""
     fid = m.scenario.plant.fidelity
     if fid == "rendered":
         return RenderedPlant(m)
     if fid == "texture":
         return TexturePlant(m)
     sigma = m.scenario.plant.sigma_px
-    if sigma is None:
-        sigma = predicted_sigma_px(m)
-    return analytic_plant(m, sigma)
+    if sigma is not None:
+        return analytic_plant(m, sigma)
+    if m.scenario.plant.noise == "rendered":
+        return analytic_plant(m, **rendered_noise(m))
+    return analytic_plant(m, predicted_sigma_px(m))

@@ -12,6 +12,7 @@ the whitened RMS and the spread of sums of W consecutive baseline-1 links, measu
 predicted. Measured here, never asserted in tests.
 
     python benchmarks/bench_link_errors.py [--fidelity rendered|texture|analytic] [--seed S]
+        [--noise-dn SIGMA]
 """
 
 from __future__ import annotations
@@ -26,12 +27,16 @@ from ground.network import estimate_independent_fraction, with_independent_fract
 from imc.wiring.product import exposure_jitter
 
 
-def link_errors(fidelity: str, seed: int | None) -> dict:
-    """The per-baseline figures of one loop (see the module docstring)."""
+def link_errors(fidelity: str, seed: int | None, noise_dn: float | None = None) -> dict:
+    """The per-baseline figures of one loop (see the module docstring); ``noise_dn``: the
+    tracker's sensor noise replaced by additive noise of that sigma, DN (a near-noiseless
+    sensor shows a bias common to the links within one strip)."""
     d = _scenario()
     d["plant"] = {"fidelity": fidelity}
     if seed is not None:
         d["seed"] = int(seed)
+    if noise_dn is not None:
+        d["camera"]["tracker"].update(noise_model="additive", noise_sigma_dn=float(noise_dn))
     m, _, _, links = _run(d, fidelity == "analytic", fidelity == "analytic")
     jit = exposure_jitter(m)
     a, b = links.a.astype(int), links.b.astype(int)
@@ -98,8 +103,10 @@ def main() -> None:
     ap.add_argument("--fidelity", choices=("rendered", "texture", "analytic"),
                     default="rendered")
     ap.add_argument("--seed", type=int, default=None)
+    ap.add_argument("--noise-dn", type=float, default=None, help="additive sensor noise of "
+                    "this sigma, DN, instead of the scenario's")
     a = ap.parse_args()
-    r = link_errors(a.fidelity, a.seed)
+    r = link_errors(a.fidelity, a.seed, a.noise_dn)
     for row in r["baselines"]:
         print(f"k={row['k']} links {row['links']}: mean "
               f"{row['mean_px'][0]:+.5f} / {row['mean_px'][1]:+.5f} px (se "

@@ -281,3 +281,24 @@ def test_the_analytic_plants_rendered_noise_is_the_rendered_trackers_bound():
     assert np.all(albedo / reported > 1.2)  # the flat shading misses the relief's texture
     assert np.all(plant.floor_px > 0.1 * ours) and np.all(plant.floor_px < 0.5 * ours)
     assert np.all((plant.efficiency > 0.9) & (plant.efficiency < 1.5))
+
+
+def test_rendered_noise_on_a_scene_without_trackable_texture_is_a_scenario_error():
+    """``plant.noise: rendered`` on a tile whose rendered frame holds no block the correlator
+    accepts (texels 20x the ground sample over a flat, shadowless tile) ends in a one-line
+    ScenarioError that names the field and the ways out, not a made-up noise level."""
+    import yaml
+    from conftest import ROOT
+
+    from imc.scenario import ScenarioError, parse_scenario
+    from imc.wiring.build import build_models
+    from imc.wiring.rendered_plant import build_plant
+
+    d = yaml.safe_load((ROOT / "scenarios" / "quickstart.yaml").read_text())
+    d.pop("expect", None)
+    d.update(duration_s=0.2, plant={"fidelity": "analytic", "noise": "rendered"})
+    d["scene"].update(texel_m=16.0, relief_rms_m=0.0)
+    m = build_models(parse_scenario(d))
+    with pytest.raises(ScenarioError, match=r"^plant\.noise: .*plant\.sigma_px") as e:
+        build_plant(m)
+    assert "\n" not in str(e.value)

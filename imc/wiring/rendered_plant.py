@@ -609,13 +609,23 @@ def rendered_noise(m: Models) -> dict:
     (``sigma_px`` (B, 2), :func:`predicted_sigma_px`), its efficiency there (``efficiency``
     (2,), :func:`correlator_efficiency`) and the renderer's floor (``floor_px`` (2,),
     :func:`render_floor_px`), one renderer for all: :func:`analytic_plant`'s arguments."""
+    from imc.scenario import ScenarioError
+
     renderer = RenderedPlant(m)
     try:
         rad = render_pose(m, plant=renderer)[0]
         floor = render_floor_px(m, plant=renderer)
     finally:
         renderer.close()
-    return {"sigma_px": predicted_sigma_px(m, radiance=rad), "floor_px": floor,
+    sigma = predicted_sigma_px(m, fill=False, radiance=rad)
+    if not np.isfinite(sigma).any():
+        raise ScenarioError(
+            f"plant.noise: the correlator accepts none of the {len(sigma)} blocks of frame 0 "
+            f"as rendered (scene.texel_m {m.scenario.scene.texel_m:g} m: too little texture "
+            "at the tracker's pixels); use plant.noise 'albedo', set plant.sigma_px, or a "
+            "finer scene.texel_m")
+    return {"sigma_px": np.where(np.isfinite(sigma), sigma, np.nanmedian(sigma)),
+            "floor_px": floor,
             "efficiency": np.asarray(correlator_efficiency(m, rad)["over_crlb"])}
 
 

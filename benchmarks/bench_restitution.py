@@ -60,7 +60,7 @@ def _run(d: dict, floor: bool = False, efficiency: bool = False,
     if floor and m.scenario.plant.fidelity == "analytic":
         from imc.wiring.rendered_plant import (
             analytic_plant,
-            correlator_efficiency,
+            efficiency_on_scene,
             predicted_sigma_px,
             render_floor_px,
             rendered_noise,
@@ -70,7 +70,8 @@ def _run(d: dict, floor: bool = False, efficiency: bool = False,
             noise = rendered_noise(m)
         else:
             noise = {"sigma_px": predicted_sigma_px(m), "floor_px": render_floor_px(m),
-                     "efficiency": np.asarray(correlator_efficiency(m)["over_crlb"])}
+                     "efficiency": (np.asarray(efficiency_on_scene(m)["over_crlb"])
+                                    if efficiency else np.ones(2))}
         if not efficiency:
             noise["efficiency"] = np.ones(2)
         print(json.dumps({k: np.asarray(v).tolist() for k, v in noise.items()}), flush=True)
@@ -231,15 +232,15 @@ def correlator_efficiency(pairs: int = 150, seed: int = 32) -> dict:
 
 def scene_efficiency(m=None, draws: int = 24, radiance: np.ndarray | None = None) -> dict:
     """The correlator's error against its bound on no_stage.yaml's own texture
-    (:func:`imc.wiring.rendered_plant.correlator_efficiency`: the flat-shaded albedo, or
+    (:func:`imc.wiring.rendered_plant.efficiency_on_scene`: the flat-shaded albedo, or
     ``radiance``, e.g. a rendered frame 0)."""
-    from imc.wiring.rendered_plant import correlator_efficiency
+    from imc.wiring.rendered_plant import efficiency_on_scene
 
     if m is None:
         d = _scenario()
         d["plant"] = {"fidelity": "analytic"}
         m = build_models(parse_scenario(d))
-    return correlator_efficiency(m, radiance, draws)
+    return efficiency_on_scene(m, radiance, draws)
 
 
 def solve_timing(frames: tuple[int, ...] = (331, 2000), k_max: int = 4) -> dict:
@@ -310,6 +311,8 @@ def main() -> None:
     ap.add_argument("--timing", action="store_true", help="only the network solve's time "
                     "with and without the links' shared noise")
     a = ap.parse_args()
+    if a.rendered_sigma and not a.render_floor:
+        ap.error("--rendered-sigma needs --render-floor (the analytic plant it changes)")
     out: dict = {}
     if a.timing:
         out["timing"] = solve_timing()

@@ -866,20 +866,27 @@ class PlantConfig(_Model):
     """What stands for the world the tracker looks at: rendered (Mitsuba frames), texture
     (the scene's albedo, each pixel showing the ground point the camera model puts there;
     numpy; the real correlator) or
-    analytic (no images: measurements = truth + noise of the correlator's predicted sigma).
+    analytic (no images in the loop: measurements = truth + noise of the correlator's
+    predicted sigma, predicted on the albedo or on frame 0 rendered once: plant.noise).
     The loop is the same for all three."""
 
     fidelity: Literal["rendered", "texture", "analytic"] = Field(
         "rendered", description="rendered, texture or analytic")
     sigma_px: float | None = Field(None, gt=0.0, description="analytic: 1-sigma noise of "
                                    "each block's shift, px (default: the correlator's "
-                                   "predicted error on the scene's texture)")
+                                   "predicted error on the scene of plant.noise)")
     noise: Literal["albedo", "rendered"] = Field(
         "albedo", description="analytic, without sigma_px: the scene the noise is predicted "
         "on. 'albedo': the flat-shaded albedo (no renderer: fast). 'rendered': frame 0 "
         "rendered once (shading and sky), with the renderer's pixel-integration floor and "
         "the correlator's efficiency on it: the rendered tracker's noise (docs/product.md, "
-        "issue 32: the record's drift within 1.5x of the rendered tracker's)")
+        "issue 32: the record's RMS error after a constant or an affine within 1.5x of the "
+        "rendered tracker's)")
+    noise_texel_m: float | None = Field(
+        None, gt=0.0, description="analytic, noise 'rendered': predict the noise on a tile of "
+        "the tracker's footprint at frame 0 with texels of this size (the scene's kind, "
+        "relief, DEM and sun), not on the scene itself: for a scene whose texels are coarser "
+        "than the tracker's pixels so that it covers a long strip (default: the scene)")
 
 
 class GyroConfig(_Model):

@@ -302,3 +302,29 @@ def test_rendered_noise_on_a_scene_without_trackable_texture_is_a_scenario_error
     with pytest.raises(ScenarioError, match=r"^plant\.noise: .*plant\.sigma_px") as e:
         build_plant(m)
     assert "\n" not in str(e.value)
+
+
+def test_the_noise_tile_predicts_a_coarse_scenes_noise_at_the_trackers_texels():
+    """``plant.noise_texel_m``: a scene too coarse to track when rendered (the previous test's
+    16 m texels) gets its analytic noise from a small tile of 0.4 m texels of the same kind
+    around the centre (:func:`imc.wiring.rendered_plant.noise_tile_models`): every block
+    trackable, its bound that of a textured scene (the quickstart's reads 0.010-0.014 px,
+    the coarse scene's albedo none) and the tile far smaller than the scene."""
+    import yaml
+    from conftest import ROOT
+
+    from imc.scenario import parse_scenario
+    from imc.wiring.build import build_models
+    from imc.wiring.rendered_plant import build_plant, noise_tile_models
+
+    d = yaml.safe_load((ROOT / "scenarios" / "quickstart.yaml").read_text())
+    d.pop("expect", None)
+    d.update(duration_s=0.2, plant={"fidelity": "analytic", "noise": "rendered",
+                                    "noise_texel_m": 0.4})
+    d["scene"].update(texel_m=16.0, relief_rms_m=0.0, size_m=2048.0)
+    m = build_models(parse_scenario(d))
+    tile = noise_tile_models(m, 0.4)
+    assert tile.scenario.scene.texel_m == 0.4 and tile.scenario.scene.size_m < 0.5 * 2048.0
+    plant = build_plant(m)
+    assert np.all((plant.sigma_px > 0.003) & (plant.sigma_px < 0.03))
+    assert np.all(np.isfinite(plant.floor_px)) and np.all(np.isfinite(plant.efficiency))

@@ -240,8 +240,9 @@ def estimate_run(sc: Scenario) -> RunEstimate:
             sensor_px = sum(s.rows * s.cols for s in (o.input_slm, o.jps_sensor, o.slm2,
                                                       o.output_sensor))
             parts["correlator"] += OPTICAL_BYTES_PER_PX * 4 * sensor_px
-    if fidelity == "rendered":
-        # Mitsuba: the albedo bitmap and texture, the DEM and cloud meshes, film and wavefront
+    if fidelity == "rendered" or (renders and sc.plant.noise_texel_m is None):
+        # Mitsuba (an analytic plant's rendered noise: the scene's own tile, once): the
+        # albedo bitmap and texture, the DEM and cloud meshes, film and wavefront
         parts["renderer"] = (8.0 * texels + 48.0 * dem_nodes + CLOUD_MESH_BYTES_PER_CELL * cells
                              + px * (24.0 + 4.0 * sc.scene.spp))
     elif fidelity == "texture":

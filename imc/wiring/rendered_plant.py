@@ -7,7 +7,9 @@ there at each instant of the exposure, averaged over it, the optics and the sens
 applied, in numpy; both are tracked by the
 real correlator (BlockTracker), cut where orbit and attitude predict the blocks. ``analytic``:
 no images, the true block shifts plus the correlator's predicted noise
-(compensation.analytic_plant.AnalyticPlant). The loop code is the same for all three.
+(compensation.analytic_plant.AnalyticPlant), predicted on the flat-shaded albedo or, with
+``plant.noise: rendered``, on frame 0 rendered once (:func:`rendered_noise`). The loop code
+is the same for all three.
 """
 
 from __future__ import annotations
@@ -20,8 +22,9 @@ from compensation.analytic_plant import AnalyticPlant
 from compensation.blocks import BlockMeasurements
 from correlator.options import CorrelatorOptions
 from correlator.tracker import BlockTracker, extract_blocks
+from imc.scenario import ScenarioError, parse_scenario
 from imc.wiring import streams
-from imc.wiring.build import Models, frame_seeds, predicted_px
+from imc.wiring.build import Models, build_models, frame_seeds, predicted_px
 from imc.wiring.links import chain_corners, pair_corners
 
 #: a block's predicted deformation (px across it) beyond which the tracker resamples the
@@ -404,7 +407,8 @@ def predicted_sigma_px(m: Models, fill: bool = True,
     """The correlator's predicted 1-sigma error (B, 2) px on this scene: frame 0's content
     (flat shading; or ``radiance``, e.g. a rendered frame 0) exposed twice with independent
     noise, block against block; a block the correlator refuses gets the others' median
-    (``fill``) or NaN. ``with_psr``: also each block's PSR (B,) (``fill`` False only)."""
+    (``fill``; 0.05 px when it refuses every block) or NaN. ``with_psr``: also each block's
+    PSR (B,) (``fill`` False only)."""
     rad = base_image(m, 0) if radiance is None else radiance
     gain = m.sensor.gain_for(m.optics.apply(rad))
     a = expose_frame(m, rad, gain, streams.rng(m.scenario.seed, "texture", 0))
@@ -436,13 +440,13 @@ def render_pose(m: Models, frame: int = 0, offsets_px=((0.0, 0.0),),
     from scene.pinhole import ray_keyframes
 
     offsets = np.atleast_2d(np.asarray(offsets_px, dtype=np.float64))
-    own = plant is None
-    if own:
-        plant = RenderedPlant(m)
     fp = m.camera.focal_plane
     t0 = float(m.frame_t_s[frame])
     poses = m.camera.pose(t0 + np.linspace(0.0, m.exposure_s, KEYFRAMES))
     n = len(m.frame_t_s)
+    own = plant is None
+    if own:
+        plant = RenderedPlant(m)
     try:
         return np.stack([plant.renderer.render(
             ray_keyframes(poses, fp, offsets[i], plant.renderer.z_start_m),
@@ -574,15 +578,16 @@ def analytic_plant(m: Models, sigma_px, floor_px=0.0, efficiency=1.0) -> Analyti
                          efficiency=efficiency)
 
 
-def correlator_efficiency(m: Models, radiance: np.ndarray | None = None,
+def efficiency_on_scene(m: Models, radiance: np.ndarray | None = None,
                           draws: int = 24) -> dict:
     """The correlator's error against its own bound on this scene: frame 0's content (the
     flat-shaded albedo, :func:`base_image`, or ``radiance``, e.g. :func:`render_pose`'s)
     exposed in ``draws`` pairs of independent sensor-noise draws (the 'texture' stream's
     members past the two :func:`predicted_sigma_px` uses), every block of a grid of
     non-overlapping blocks of the scenario's size, true shift 0. Returns ``over_crlb`` (2,)
-    (RMS error / RMS bound per axis, what :func:`analytic_plant` takes as ``efficiency``),
-    ``rms_px``, ``crlb_px`` and the valid ``blocks``."""
+    (RMS error / RMS bound per axis, what :func:`analytic_plant` takes as ``efficiency``;
+    NaN where no block is valid), ``rms_px``, ``crlb_px`` and ``blocks``, the valid block
+    measurements over all draws."""
     rad = base_image(m, 0) if radiance is None else radiance
     gain = m.sensor.gain_for(m.optics.apply(rad))
     fp, bp = m.camera.focal_plane, m.scenario.correlator.block_px
@@ -603,30 +608,60 @@ def correlator_efficiency(m: Models, radiance: np.ndarray | None = None,
             "crlb_px": bound.tolist(), "over_crlb": (rms / bound).tolist()}
 
 
+def noise_tile_models(m: Models, texel_m: float) -> Models:
+    """The models of the tile that ``plant.noise_texel_m`` asks the analytic plant's noise to
+    be predicted on: the scenario's camera, orbit, attitude, tracker and scene kind, relief,
+    DEM spacing and sun, over the first three tracker frames (a pass that short is over the
+    scene's centre, as the whole run's pass is over it mid-run), on a tile of ``texel_m``
+    texels around the centre, 3x the side of the ground the tracker sees in a frame plus
+    four DEM cells (at least 256 m, at most the scene's own side), without the main
+    imager's product."""
+    fp = m.camera.focal_plane
+    corners = np.array([[0.0, 0.0], [0.0, fp.cols - 1.0], [fp.rows - 1.0, 0.0],
+                        [fp.rows - 1.0, fp.cols - 1.0]])
+    pts = m.camera.ground_points(corners, float(m.frame_t_s[0]), m.terrain.height_at)
+    span = float(np.max(np.ptp(pts[:, :2], axis=0)))
+    sc = m.scenario
+    d = sc.model_dump(mode="json", exclude={"expect"})
+    dem = float(sc.scene.dem_spacing_m)
+    side = float(np.clip(dem * np.ceil((3.0 * span + 4.0 * dem) / dem), 256.0, sc.scene.size_m))
+    side = min(dem * np.ceil(side / dem), sc.scene.size_m)  # a whole number of DEM cells
+    d["duration_s"] = 3.0 / float(sc.camera.tracker.frame_rate_hz)
+    d["scene"].update(size_m=side, texel_m=float(texel_m))
+    d["camera"]["main_imager"]["start_s"] = 0.0
+    d["product"] = {"enabled": False}
+    d["plant"] = {"fidelity": "rendered"}
+    return build_models(parse_scenario(d))
+
+
 def rendered_noise(m: Models) -> dict:
     """The analytic plant's noise as the rendered tracker has it (``plant.noise:
-    rendered``): frame 0 rendered once (:func:`render_pose`), the correlator's bound on it
-    (``sigma_px`` (B, 2), :func:`predicted_sigma_px`), its efficiency there (``efficiency``
-    (2,), :func:`correlator_efficiency`) and the renderer's floor (``floor_px`` (2,),
+    rendered``): frame 0 rendered once (:func:`render_pose`; on :func:`noise_tile_models`'
+    tile when ``plant.noise_texel_m`` is set), the correlator's bound on it (``sigma_px``
+    (B, 2), :func:`predicted_sigma_px`), its efficiency there (``efficiency`` (2,),
+    :func:`efficiency_on_scene`) and the renderer's floor (``floor_px`` (2,),
     :func:`render_floor_px`), one renderer for all: :func:`analytic_plant`'s arguments."""
-    from imc.scenario import ScenarioError
-
+    texel = m.scenario.plant.noise_texel_m
+    if texel is not None:
+        m = noise_tile_models(m, texel)
     renderer = RenderedPlant(m)
     try:
         rad = render_pose(m, plant=renderer)[0]
-        floor = render_floor_px(m, plant=renderer)
+        sigma = predicted_sigma_px(m, fill=False, radiance=rad)
+        if np.isfinite(sigma).any():
+            floor = render_floor_px(m, plant=renderer)
+            eff = np.asarray(efficiency_on_scene(m, rad)["over_crlb"])
     finally:
         renderer.close()
-    sigma = predicted_sigma_px(m, fill=False, radiance=rad)
-    if not np.isfinite(sigma).any():
+    if not (np.isfinite(sigma).any() and np.all(np.isfinite(floor))
+            and np.all(np.isfinite(eff))):
         raise ScenarioError(
-            f"plant.noise: the correlator accepts none of the {len(sigma)} blocks of frame 0 "
-            f"as rendered (scene.texel_m {m.scenario.scene.texel_m:g} m: too little texture "
-            "at the tracker's pixels); use plant.noise 'albedo', set plant.sigma_px, or a "
-            "finer scene.texel_m")
-    return {"sigma_px": np.where(np.isfinite(sigma), sigma, np.nanmedian(sigma)),
-            "floor_px": floor,
-            "efficiency": np.asarray(correlator_efficiency(m, rad)["over_crlb"])}
+            f"plant.noise: the correlator accepts too few of the {len(sigma)} blocks of frame "
+            f"0 as rendered (texels of {m.scenario.scene.texel_m:g} m: too little texture at "
+            "the tracker's pixels); use plant.noise 'albedo', set plant.sigma_px, or finer "
+            "texels (scene.texel_m, or plant.noise_texel_m for the noise alone)")
+    return {"sigma_px": np.where(np.isfinite(sigma), sigma, np.nanmedian(sigma, axis=0)),
+            "floor_px": floor, "efficiency": eff}
 
 
 def build_plant(m: Models):

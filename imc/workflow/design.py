@@ -642,7 +642,8 @@ def candidate_mapping(design: Design, r: dict, seed_offset: int = 0,
         comp["controller"] = controller_block(ch, base)
         comp["actuator"] = actuator_block(ch, base, float(r["piezo_stroke_px"]) or None)
     m.setdefault("plant", {})["fidelity"] = fidelity or design.config.verify.fidelity
-    m["plant"].pop("sigma_px", None)
+    for key in ("sigma_px", "noise", "noise_texel_m"):  # the bound the prediction assumes
+        m["plant"].pop(key, None)
     m.setdefault("metrics", {})["blur_images"] = False
     niirs = NIIRS_PATH in design.config.requirements
     if r["ground"] == "correction" or niirs:

@@ -145,7 +145,9 @@ BLOCK_EXPONENT = {"texture": -0.55, "rendered": -0.12}
 #: bound: 1.
 CORRELATOR_EFFICIENCY: dict[str, dict[str, Efficiency]] = {
     "analytic": {"*": Efficiency(1.0, 0.0, 0.0, "by construction: the analytic plant draws "
-                                 "its noise at the bound")},
+                                 "its noise at the bound (plant.noise 'albedo', which "
+                                 "imc design's verification uses; 'rendered' draws at the "
+                                 "efficiency it measures, not modelled here)")},
     "texture": {
         "procedural": Efficiency(1.01, -0.56, 0.22, _TEXTURE + _BLOCKS, BLOCK_EXPONENT["texture"]),
         "urban": Efficiency(0.97, -0.20, 0.20, _TEXTURE, BLOCK_EXPONENT["texture"]),

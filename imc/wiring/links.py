@@ -6,7 +6,8 @@ A scanning tracker re-references every frame: the loop measures frame k against 
 (its causal short baseline, kept as is: the loop's figures do not change). The ground has
 the whole record, so the device also correlates frame k against frames k - 2 .. k - K where
 the content is still on the sensor (:func:`overlap_baselines`): the same block grid, each
-block cut at half the predicted motion in both frames, as the loop's chain cuts it. Each link
+block cut at half the predicted motion in both frames, as the loop's chain cuts it, and
+measured as the loop measures (:func:`measure_pair`: the integer cut, no resampling). Each link
 is the blocks' inverse-variance mean of the measured shift less the orbit / attitude / DEM
 prediction (and the stage's known change): the jitter's increment ``s(t_b) - s(t_a)`` at the
 tracker's blocks, in tracker pixels (the main imager shares the focal plane and its scale).
@@ -23,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from correlator.options import CorrelatorOptions
 from correlator.tracker import BlockTracker
 from ground.network import Links, SharedNoise
 from imc.wiring import streams
@@ -187,15 +189,33 @@ def pair_corners(corners: np.ndarray, step_px: np.ndarray, block_px: int, lim: n
     return out, used
 
 
+def measure_pair(ref_frame: np.ndarray, cur_frame: np.ndarray, corners: np.ndarray,
+                 predicted_px: np.ndarray, block_px: int,
+                 options: CorrelatorOptions | None = None,
+                 rng: np.random.Generator | None = None):
+    """One pair of the ground's network: the blocks at ``corners`` (B, 2) of ``ref_frame``
+    found in ``cur_frame`` near ``predicted_px`` (B, 2) px, as the loop measures its own links:
+    each current block cut at the rounded prediction, the sub-pixel part left to the
+    correlator's own estimate (:meth:`correlator.tracker.BlockTracker.update`). Returns its
+    :class:`correlator.core.ShiftResult` (shift (B, 2) px, from the reference).
+
+    The current block is not resampled at the predicted motion first. A cubic spline
+    resampling a block at a fractional shift phi moves its content by phi plus an error of
+    its own, odd in phi about the whole and the half pixel: +0.9..+4.1e-3 px at phi = 0.25
+    and -0.9..-1.8e-3 px at 0.93 on band-limited textures, against <= 0.23e-3 px for the
+    correlator's estimate on the integer cut (``tests/test_restitution_wiring.py``). A
+    chain's links share one phase per baseline, so that error added up to the record's
+    along-track drift (issue 32; docs/product.md, "The ground's pairs are no longer
+    resampled")."""
+    tracker = BlockTracker(ref_frame, corners, block_px, options)
+    return tracker.update(cur_frame, predicted_px, rng)
+
+
 def _extra_blocks(m: Models, frames: np.ndarray, stage_mean: np.ndarray, k_max: int,
-                  first: int = 2, warp: bool = True):
+                  first: int = 2):
     """Links of baselines ``first``..k_max per block, measured on the stored frames with the
     loop's chain's block cut (at half the predicted motion) kept inside the sensor's margin
-    (:func:`pair_corners`); ``warp``: the current block
-    resampled (cubic spline) at the predicted motion, so the correlator measures only the
-    jitter's increment about zero, where its sub-pixel estimate has no bias (a chain's links
-    all share one fractional predicted shift: the estimator's bias there adds up to a
-    drift)."""
+    (:func:`pair_corners`), each pair by :func:`measure_pair`."""
     b = m.scenario.correlator.block_px
     fp = m.camera.focal_plane
     lim = np.array([fp.rows - b, fp.cols - b])
@@ -208,11 +228,8 @@ def _extra_blocks(m: Models, frames: np.ndarray, stage_mean: np.ndarray, k_max: 
             corners, inside = pair_corners(m.corners, step, b, lim)
             centers = BlockTracker.centers_from(corners, b)
             pred = predicted_px(m, centers, a, k, stage_mean[a], stage_mean[k])
-            tracker = BlockTracker(frames[a], corners, b, m.correlator)
-            flow = np.broadcast_to(pred[:, None, None, :], (len(pred), b, b, 2)) if warp \
-                else None
-            res = tracker.update(frames[k], pred, streams.rng(m.scenario.seed, "links", k, j),
-                                 flow=flow)
+            res = measure_pair(frames[a], frames[k], corners, pred, b, m.correlator,
+                               streams.rng(m.scenario.seed, "links", k, j))
             out_a.append(a)
             out_b.append(k)
             out_d.append(res.shift - pred)

@@ -1,8 +1,9 @@
 """The ground's pairs (baselines 1-4) on a rendered chained record against the camera model's
 truth, per candidate cause of their bias (issue 32): each pair cut as
 :func:`imc.wiring.links.pair_corners` cuts it, the current block brought to the predicted
-motion five ways (the correlator's own sub-pixel estimate on the integer cut, and resampled by
-a cubic spline as the links are, a quintic spline, bilinear interpolation and a Fourier shift),
+motion five ways (the correlator's own sub-pixel estimate on the integer cut, as the links
+are since 2026-12-05, and resampled by a cubic spline, as they were before, a quintic spline,
+bilinear interpolation and a Fourier shift),
 and the truth at the block's centre against its mean over a 5 x 5 grid across the block (a
 field-dependent motion). Per baseline: the links' mean error and its standard error, each
 block's mean, and the slope of the error on the true jitter increment (a scale error).

@@ -225,7 +225,7 @@ def test_the_grounds_pairs_carry_no_sub_pixel_phase_bias():
     # phase ramp 41 px + phi along the rows, noise-free: the ground's pair measurement
     # (integer cut, the correlator's sub-pixel) errs by <= 0.23e-3 px on average at every
     # phase; a cubic-spline resampling of the current block at the predicted motion (the
-    # ground's way before) moves the content by +0.9..+4.1e-3 px more at a quarter pixel and
+    # ground's way before) moves the content by +2.1..+4.1e-3 px more at a quarter pixel and
     # -0.9..-1.8e-3 at 0.93, an error a chain's links share per baseline (a drift)
     import scipy.fft as sfft
 

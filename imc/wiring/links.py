@@ -201,7 +201,7 @@ def measure_pair(ref_frame: np.ndarray, cur_frame: np.ndarray, corners: np.ndarr
 
     The current block is not resampled at the predicted motion first. A cubic spline
     resampling a block at a fractional shift phi moves its content by phi plus an error of
-    its own, odd in phi about the whole and the half pixel: +0.9..+4.1e-3 px at phi = 0.25
+    its own, odd in phi about the whole pixel: +2.1..+4.1e-3 px at phi = 0.25
     and -0.9..-1.8e-3 px at 0.93 on band-limited textures, against <= 0.23e-3 px for the
     correlator's estimate on the integer cut (``tests/test_restitution_wiring.py``). A
     chain's links share one phase per baseline, so that error added up to the record's
